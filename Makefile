@@ -1,0 +1,58 @@
+# make test / make demo: set up .venv (pinned ROS 2 Jazzy wheels + scientific stack),
+# build reachset_msgs into it, install this package editable, then run.
+# Only python3.11, cmake and a C compiler are needed. A second call reuses everything.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := $(CURDIR)/.venv
+PY := $(VENV)/bin/python
+export VIRTUAL_ENV := $(VENV)
+export PATH := $(VENV)/bin:$(PATH)
+export AMENT_PREFIX_PATH := $(VENV)
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export PYTHONDONTWRITEBYTECODE := 1
+
+MSG_SRCS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
+PYTEST_ARGS ?= -q
+
+.PHONY: all venv test demo benchmark clean distclean
+
+all: test
+
+$(VENV)/.deps: requirements.txt constraints.txt
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -c constraints.txt pip
+	$(PY) -m pip install -q --disable-pip-version-check -c constraints.txt -r requirements.txt
+	$(PY) tools/patch_ament_cmake.py
+	@touch $@
+
+$(VENV)/.msgs: $(VENV)/.deps $(MSG_SRCS)
+	rm -rf build/msgs
+	cmake -S msg_defs -B build/msgs -DCMAKE_INSTALL_PREFIX=$(VENV) -DBUILD_TESTING=OFF \
+	  -DPython3_EXECUTABLE=$(PY) > build-msgs.log 2>&1 || (tail -40 build-msgs.log; exit 1)
+	cmake --build build/msgs -j2 >> build-msgs.log 2>&1 || (tail -40 build-msgs.log; exit 1)
+	cmake --install build/msgs >> build-msgs.log 2>&1 || (tail -40 build-msgs.log; exit 1)
+	$(PY) -c "import reachset_msgs.msg, reachset_msgs.srv"
+	@rm -f build-msgs.log
+	@touch $@
+
+$(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	@touch $@
+
+venv: $(VENV)/.pkg
+
+test: venv
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+demo: venv
+	$(VENV)/bin/reachset demo --headless
+
+benchmark: venv
+	$(PY) benchmarks/run_all.py
+
+clean:
+	rm -rf build build-msgs.log .pytest_cache
+	find . -name __pycache__ -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)

@@ -1,0 +1,54 @@
+"""The ``reachset`` command line (../shared/INTERFACES.md).
+
+Subcommands live in :mod:`reachset_ros.commands`, one module each. Errors in the user's
+input raise :class:`reachset_ros.errors.ReachsetError`; ``main`` prints them as one line
+and exits with status 2 (a traceback only with ``--debug``).
+"""
+import argparse
+import importlib
+import sys
+
+from .commands import MODULES
+from .errors import ReachsetError
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="reachset",
+        description="Reachset-conformant identification, controller synthesis and conformance "
+                    "checking for feedback-linearized robots (Liu, Schuermann, Althoff, IEEE T-RO).")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for modname in MODULES:
+        mod = importlib.import_module(f".commands.{modname}", __package__)
+        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show full tracebacks")
+        mod.add_arguments(sp)
+        sp.set_defaults(_run=mod.run)
+    return parser
+
+
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    try:
+        args._run(args)
+    except ReachsetError as e:
+        if args.debug:
+            raise
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        print(f"reachset {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,22 @@
+"""Subcommands of the ``reachset`` command line, one module per command.
+
+Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args)``;
+``run`` prints its result (through :func:`emit`) and raises
+:class:`reachset_ros.errors.ReachsetError` for bad input.
+"""
+import json
+import sys
+
+#: Modules under reachset_ros.commands, in the order ``reachset --help`` lists them.
+MODULES = ["selftest"]
+
+
+def emit(args, result, human=None):
+    """Print ``result`` as one JSON object with ``--json``, else ``human`` (or indented JSON)."""
+    if getattr(args, "json", False):
+        json.dump(result, sys.stdout, sort_keys=True, allow_nan=False)
+        sys.stdout.write("\n")
+    elif human is not None:
+        print(human)
+    else:
+        print(json.dumps(result, indent=2, sort_keys=True, allow_nan=False))

@@ -1,0 +1,32 @@
+"""reachset_ros: ament_python package (colcon on Jazzy) and pip-installable (make test/demo)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "reachset_ros"
+
+NODES = {
+    "plant_input_talker": "reachset_ros.nodes.talker:main",
+}
+SCRIPTS = ["reachset = reachset_ros.cli:main"] + [f"{k} = {v}" for k, v in NODES.items()]
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["data/*", "data/**/*"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/config", glob("config/*")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="reachset_ros developers",
+    maintainer_email="dev@reachset-ros.invalid",
+    description="Reachset-conformant identification, controller synthesis and online monitoring (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": SCRIPTS},
+)

@@ -1,0 +1,22 @@
+"""Shared test set-up: DDS isolated per test session, paths to the shared data."""
+import os
+import random
+from pathlib import Path
+
+import pytest
+
+# Real DDS, but only on this host and in a domain of our own, so that parallel test runs
+# (and other ROS 2 programs on the machine) do not see each other.
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED = REPO.parent / "shared"
+LWA4P_DATA = SHARED / "data" / "lwa4p_iros2018"
+
+
+@pytest.fixture(scope="session")
+def lwa4p_dir():
+    if not LWA4P_DATA.is_dir():
+        pytest.skip(f"real recordings not found at {LWA4P_DATA}")
+    return LWA4P_DATA
