@@ -45,7 +45,7 @@ test: venv
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 demo: venv
-	$(VENV)/bin/reachset demo --headless
+	$(VENV)/bin/reachset selftest
 
 benchmark: venv
 	$(PY) benchmarks/run_all.py
