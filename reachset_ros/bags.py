@@ -311,6 +311,9 @@ def segments_of(stamps, valid, dt):
 def read_joint_series(paths, joints=None, dt=0.004):
     """Per-joint paired (y, u_p) series from rosbag2 bags (MCAP or sqlite3).
 
+    Each bag is read on its own and the bags' series are concatenated; a test case never
+    spans two bags (each bag starts a new segment).
+
     Samples are paired by header stamp and joint name, never by index or arrival order;
     sorted by stamp; duplicate stamps dropped (first kept); segments split at gaps and at
     invalid (NaN/inf) samples, which are reported, not fatal.
@@ -330,6 +333,39 @@ def read_joint_series(paths, joints=None, dt=0.004):
     series : dict name -> JointSeries
     report : ReadReport
     """
+    parts = [_read_one(p, joints, dt) for p in paths]
+    if len(parts) == 1:
+        return parts[0]
+    names = list(parts[0][0])
+    for ser, _ in parts[1:]:
+        if list(ser) != names:
+            raise ReachsetError(f"bags have different joints: {names} vs {list(ser)}; pass --joints")
+    out = {}
+    for n in names:
+        stamps, y, u, segs, off = [], [], [], [], 0
+        for ser, _ in parts:
+            s = ser[n]
+            stamps.append(s.stamps)
+            y.append(s.y)
+            u.append(s.u)
+            segs.extend((a + off, b + off) for a, b in s.segments)
+            off += len(s.stamps)
+        arrs = [np.concatenate(a) for a in (stamps, y, u)]
+        for a in arrs:
+            a.setflags(write=False)
+        out[n] = JointSeries(n, *arrs, tuple(segs), dt)
+    rep = ReadReport()
+    for _, r in parts:
+        for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps"):
+            acc = getattr(rep, key)
+            for k, v in getattr(r, key).items():
+                acc[k] = acc.get(k, 0) + v
+        rep.ignored_joints = sorted(set(rep.ignored_joints) | set(r.ignored_joints))
+    return out, rep
+
+
+def _read_one(path, joints, dt):
+    paths = [path]
     cols = read_topics(paths)
     js, pi = cols[JOINT_STATES], cols[PLANT_INPUT]
     rep = ReadReport()

@@ -1,0 +1,42 @@
+"""Arguments and loading shared by the bag-consuming subcommands."""
+from pathlib import Path
+
+from ..bags import read_joint_series
+from ..errors import ReachsetError
+
+
+def add_bag_arguments(p, joints=True):
+    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 directories (MCAP or sqlite3)")
+    if joints:
+        p.add_argument("--joints", default="all", help="comma-separated joint names, or 'all' (default)")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def parse_joints(text):
+    names = [j.strip() for j in str(text).split(",") if j.strip()]
+    if not names:
+        raise ReachsetError("--joints: no joint names given")
+    return None if names == ["all"] else names
+
+
+def load_series(bags, joints, dt=0.004, restrict=None):
+    """Per-joint series from the bags; ``restrict`` limits 'all' to the model's joints."""
+    names = parse_joints(joints) if isinstance(joints, str) else joints
+    if names is None and restrict is not None:
+        series, report = read_joint_series(bags, None, dt)
+        missing = [j for j in restrict if j not in series]
+        if missing:
+            raise ReachsetError(f"joint {missing[0]} of the model not found in the bags")
+        return {j: series[j] for j in restrict}, report
+    return read_joint_series([Path(b) for b in bags], names, dt)
+
+
+def check_out_path(out):
+    if out is None:
+        return None
+    p = Path(out)
+    if p.exists() and p.is_dir():
+        raise ReachsetError(f"{p}: --out is a directory")
+    if not p.parent.exists():
+        raise ReachsetError(f"{p.parent}: output directory does not exist")
+    return p

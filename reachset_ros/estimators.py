@@ -1,0 +1,101 @@
+"""Initial-state estimators of test cases (paper Def. 3: the test case's x_p[0]).
+
+How the initial state of a test case is estimated from data is a named, configurable
+choice; it is stored in the model file, and the online monitor uses exactly the same
+one, or the offline guarantees do not transfer. Every estimator here is *causal*: the
+initial state of the test case starting at tick m uses only samples up to tick m.
+
+The estimators are written with element-wise array operations only, so that the batch
+computation over all test cases (``reachset check``) and the monitor's one-tick-at-a-time
+computation give bitwise identical results.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ReachsetError
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """A named initial-state estimator.
+
+    Attributes
+    ----------
+    name : str
+        ``"fd"``: causal finite differences of positions (LWA-4P plant of Appendix A);
+        ``"output"``: generic plant, x0 = pinv(C) y[m] (states not seen by C set to 0).
+    history : int
+        Number of past ticks (before m) the estimator reads, all in the same segment.
+    """
+
+    name: str = "fd"
+
+    @property
+    def history(self) -> int:
+        return {"fd": 1, "output": 0}[self.name]
+
+    def as_dict(self):
+        return {"name": self.name}
+
+    @classmethod
+    def from_dict(cls, d):
+        if not isinstance(d, dict) or d.get("name") not in ESTIMATORS:
+            raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
+        return cls(d["name"])
+
+    def estimate(self, plant, y, u, m):
+        """Initial states of the test cases starting at ticks ``m``.
+
+        Parameters
+        ----------
+        plant : LinearPlant
+        y : ndarray, shape (T, ny)
+        u : ndarray, shape (T, nu)
+        m : ndarray of int, shape (M,)
+            Start ticks; ``m - history`` must be in the same segment.
+
+        Returns
+        -------
+        X0 : ndarray, shape (n, M)
+        """
+        return ESTIMATORS[self.name](plant, y, u, m)
+
+
+def _fd(plant, y, u, m):
+    """Appendix-A state [q[k-1], q[k], qdot[k], d[k], u_p[k-1]] from y[m], y[m-1], u[m-1].
+
+    y[k] = q[k-1] (one-sample output delay); qdot ~ (y[m] - y[m-1]) / dt; q[k] ~ y[m] + dt qdot;
+    the disturbance state starts at 0; the delayed input is the recorded u[m-1].
+    """
+    if plant.A.shape[0] != 5 or y.shape[1] != 1:
+        raise ReachsetError("estimator 'fd' is for the per-joint LWA-4P plant (5 states, 1 output); "
+                            "use 'output' for other plants")
+    dt = plant.dt
+    ym = y[m, 0]
+    v = (ym - y[m - 1, 0]) / dt
+    X0 = np.zeros((5, len(m)))
+    X0[0] = ym
+    X0[1] = ym + v * dt
+    X0[2] = v
+    X0[4] = u[m - 1, 0]
+    return X0
+
+
+def _output(plant, y, u, m):
+    P = np.linalg.pinv(plant.C)
+    n = plant.A.shape[0]
+    Y = y[m].T  # (ny, M)
+    X0 = np.zeros((n, len(m)))
+    for i in range(n):
+        acc = np.zeros(len(m))
+        for j in range(P.shape[1]):
+            if P[i, j] != 0.0:
+                acc = acc + P[i, j] * Y[j]
+        X0[i] = acc
+    return X0
+
+
+ESTIMATORS = {"fd": _fd, "output": _output}

@@ -1,0 +1,195 @@
+"""The conformance model file (YAML): an identified, immutable value.
+
+Holds everything needed to reproduce a verdict: the plant (the paper's per-joint
+LWA-4P model or explicit matrices), per joint the identified sets W = (c_W, G'_W diag
+alpha_W) and V = (c_V, G'_V diag alpha_V), the horizon k*, the initial-state estimator,
+an optional calibrated inflation, optional gains, and provenance (input bags and their
+SHA-256). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
+``replay`` and the monitor node read it.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import ReachsetError
+from .estimators import Estimator
+from .plant import LinearPlant, lwa4p_joint_plant
+
+FORMAT = "reachset_ros/model/1"
+
+
+@dataclass(frozen=True)
+class JointSets:
+    """Identified sets and bookkeeping of one joint."""
+
+    alpha_w: tuple
+    alpha_v: tuple
+    c_w: tuple
+    c_v: tuple
+    test_cases: int = 0
+    horizon: int = 125
+    gains: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    def xi(self, inflation=0.0):
+        """Theorem-1 parameter vector [c_W, c_V, (1+inflation) alpha_W, (1+inflation) alpha_V]."""
+        s = 1.0 + float(inflation)
+        return np.concatenate([np.array(self.c_w, float), np.array(self.c_v, float),
+                               s * np.array(self.alpha_w, float), s * np.array(self.alpha_v, float)])
+
+
+@dataclass(frozen=True)
+class ConformanceModel:
+    """A reachset-conformant model of a robot's joints (immutable)."""
+
+    plant: LinearPlant
+    plant_spec: dict
+    estimator: Estimator
+    horizon: int
+    joints: dict
+    inflation: float = 0.0
+    provenance: dict = field(default_factory=dict)
+
+    def with_joints(self, joints):
+        return replace(self, joints=dict(joints))
+
+
+def plant_from_spec(spec):
+    """``{"kind": "lwa4p_joint", "dt": 0.004}`` or ``{"kind": "matrices", "A": ..., ...}``."""
+    if not isinstance(spec, dict):
+        raise ReachsetError("model: 'plant' must be a mapping")
+    kind = spec.get("kind")
+    try:
+        if kind == "lwa4p_joint":
+            return lwa4p_joint_plant(dt=float(spec.get("dt", 0.004)))
+        if kind == "matrices":
+            return LinearPlant(A=spec["A"], B=spec["B"], C=spec["C"], D=spec.get("D"),
+                               Gw=spec["Gw"], Gv=spec["Gv"], dt=float(spec.get("dt", 0.004)))
+    except (KeyError, ValueError, TypeError) as e:
+        raise ReachsetError(f"model: bad plant: {e}") from e
+    raise ReachsetError(f"model: unknown plant kind {kind!r} (lwa4p_joint or matrices)")
+
+
+def file_sha256(path):
+    """SHA-256 of a file, or of a bag directory's files in name order."""
+    h = hashlib.sha256()
+    p = Path(path)
+    files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+    for q in files:
+        h.update(q.name.encode())
+        with open(q, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def _floats(v, name, n=None):
+    try:
+        a = [float(x) for x in (v if isinstance(v, (list, tuple)) else [v])]
+    except (TypeError, ValueError):
+        raise ReachsetError(f"model: {name} must be numbers, got {v!r}") from None
+    if n is not None and len(a) != n:
+        raise ReachsetError(f"model: {name} needs {n} values, got {len(a)}")
+    if not all(math.isfinite(x) for x in a):
+        raise ReachsetError(f"model: {name} must be finite, got {a}")
+    return tuple(a)
+
+
+def to_dict(model: ConformanceModel) -> dict:
+    return {
+        "format": FORMAT,
+        "plant": model.plant_spec,
+        "estimator": model.estimator.as_dict(),
+        "horizon": int(model.horizon),
+        "inflation": float(model.inflation),
+        "joints": {name: {"alpha_w": list(j.alpha_w), "alpha_v": list(j.alpha_v),
+                          "c_w": list(j.c_w), "c_v": list(j.c_v),
+                          "test_cases": int(j.test_cases), "horizon": int(j.horizon),
+                          **({"gains": j.gains} if j.gains else {}),
+                          **({"extra": j.extra} if j.extra else {})}
+                   for name, j in model.joints.items()},
+        "provenance": model.provenance,
+    }
+
+
+def from_dict(d, source="model") -> ConformanceModel:
+    """Validate and build a model; every problem is one :class:`ReachsetError` line."""
+    if not isinstance(d, dict):
+        raise ReachsetError(f"{source}: not a model file (expected a YAML mapping)")
+    if d.get("format") != FORMAT:
+        raise ReachsetError(f"{source}: unknown format {d.get('format')!r}, expected {FORMAT}")
+    plant = plant_from_spec(d.get("plant"))
+    est = Estimator.from_dict(d.get("estimator", {"name": "fd"}))
+    try:
+        horizon = int(d.get("horizon", 125))
+    except (TypeError, ValueError):
+        raise ReachsetError(f"{source}: horizon must be an integer") from None
+    if horizon < 0:
+        raise ReachsetError(f"{source}: horizon must be >= 0")
+    inflation = _floats(d.get("inflation", 0.0), "inflation", 1)[0]
+    if inflation < 0:
+        raise ReachsetError(f"{source}: inflation must be >= 0")
+    joints_in = d.get("joints")
+    if not isinstance(joints_in, dict) or not joints_in:
+        raise ReachsetError(f"{source}: no joints")
+    n, ny = plant.A.shape[0], plant.C.shape[0]
+    pw, pv = plant.Gw.shape[1], plant.Gv.shape[1]
+    joints = {}
+    for name, j in joints_in.items():
+        if not isinstance(j, dict):
+            raise ReachsetError(f"{source}: joint {name}: expected a mapping")
+        aw = _floats(j.get("alpha_w"), f"joint {name} alpha_w", pw)
+        av = _floats(j.get("alpha_v"), f"joint {name} alpha_v", pv)
+        if min(aw + av) < 0:
+            raise ReachsetError(f"{source}: joint {name}: negative scaling factor alpha")
+        cw = _floats(j.get("c_w", [0.0] * n), f"joint {name} c_w", n)
+        cv = _floats(j.get("c_v", [0.0] * ny), f"joint {name} c_v", ny)
+        gains = j.get("gains", {}) or {}
+        if not isinstance(gains, dict):
+            raise ReachsetError(f"{source}: joint {name}: gains must be a mapping")
+        joints[str(name)] = JointSets(aw, av, cw, cv, int(j.get("test_cases", 0)),
+                                      int(j.get("horizon", horizon)), gains, j.get("extra", {}) or {})
+    return ConformanceModel(plant, dict(d["plant"]), est, horizon, joints, inflation,
+                            d.get("provenance", {}) or {})
+
+
+def load(path) -> ConformanceModel:
+    p = Path(path)
+    if not p.is_file():
+        raise ReachsetError(f"{p}: model file not found")
+    try:
+        d = yaml.safe_load(p.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise ReachsetError(f"{p}: model file does not parse ({type(e).__name__})") from None
+    return from_dict(d, str(p))
+
+
+def save(model: ConformanceModel, path):
+    """Write atomically (temporary file in the same directory, then rename)."""
+    p = Path(path)
+    d = to_dict(model)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".partial", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            yaml.safe_dump(d, f, sort_keys=False)
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def provenance(bags, command):
+    return {"created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "command": command,
+            "bags": [{"path": str(b), "sha256": file_sha256(b)} for b in bags]}

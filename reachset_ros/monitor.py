@@ -1,0 +1,167 @@
+"""Online conformance monitor core (paper Theorem 1, checked tick by tick).
+
+Each tick a new sequential test case starts (Def. 3); every test case started in the last
+k* ticks gets its k-th check ``N_k y_a <= D_k xi``. The immutable :class:`MonitorModel`
+holds what the model file says (plant, estimator, offsets per k); the mutable
+:class:`JointMonitor` holds a joint's state (last samples, nominal states of the active
+test cases): the model/data split of Pinocchio.
+
+The arithmetic is that of :func:`reachset_ros.conformance.sweep` (same estimator, same
+element-wise kernels), so ``reachset replay`` gives exactly ``reachset check``'s verdicts.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .conformance import Theorem1, advance, matvec, predict_output
+
+
+@dataclass(frozen=True)
+class MonitorModel:
+    """Per-joint immutable monitor data: plant, estimator, normals and offsets per k."""
+
+    name: str
+    plant: object
+    estimator: object
+    horizon: int
+    normals: tuple
+    dp: tuple
+    dm: tuple
+
+    @property
+    def scalar(self):
+        """One-dimensional output: N_k = [1] for every k, checks vectorised over test cases."""
+        return self.plant.C.shape[0] == 1
+
+    @property
+    def dp_vec(self):
+        return self._vec("dp")
+
+    @property
+    def dm_vec(self):
+        return self._vec("dm")
+
+    def _vec(self, which):
+        cache = self.__dict__.setdefault("_cache", {})
+        if which not in cache:
+            cache[which] = np.array([d[0] for d in getattr(self, which)])
+        return cache[which]
+
+    @classmethod
+    def from_model(cls, model, joint, thm=None):
+        thm = thm or Theorem1.build(model.plant, model.horizon)
+        offs = thm.offsets(model.joints[joint].xi(model.inflation))
+        return cls(joint, model.plant, model.estimator, model.horizon, thm.normals,
+                   tuple(o[0] for o in offs), tuple(o[1] for o in offs))
+
+
+@dataclass
+class TickResult:
+    """Verdict of one tick for one joint."""
+
+    conformant: bool
+    status: str                 # ok | violation | invalid | gap_reset
+    checked: int                # test cases checked this tick
+    margin: float               # min (offset - N y_a) over the checks, rad (inf if none)
+    step: int = -1              # k of the tightest (or violated) check
+    start_tick: int = -1        # tick index at which that test case started
+    deviation: float = 0.0      # N y_a of that check
+    bound: float = 0.0          # its offset D_k xi
+
+
+class JointMonitor:
+    """Mutable state of one joint's monitor; feed it :meth:`tick` once per measurement."""
+
+    def __init__(self, mm: MonitorModel):
+        self.mm = mm
+        self.reset()
+
+    def reset(self):
+        """Forget all test cases (after a gap, an invalid sample, or a reset service call)."""
+        n = self.mm.plant.A.shape[0]
+        self.X = np.zeros((n, 0))
+        self.ages = np.zeros(0, dtype=np.int64)
+        self.starts = np.zeros(0, dtype=np.int64)
+        hist = self.mm.estimator.history
+        self.y_hist = np.zeros((hist + 1, self.mm.plant.C.shape[0]))
+        self.u_hist = np.zeros((hist + 1, self.mm.plant.B.shape[1]))
+        self.in_segment = 0          # consecutive valid ticks so far in this segment
+        self.last_stamp = None
+        self.tick_index = -1
+
+    def tick(self, stamp_ns: int, y, u) -> TickResult:
+        """Process the measurement y and plant input u stamped ``stamp_ns``.
+
+        A stamp step outside [0.5, 1.5] dt starts a new segment (test cases are dropped,
+        exactly as the batch check never lets a test case span a gap); a non-finite sample
+        returns status ``invalid`` and also ends the segment.
+        """
+        p = self.mm.plant
+        self.tick_index += 1
+        y = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        u = np.atleast_1d(np.asarray(u, dtype=np.float64))
+        status = "ok"
+        if self.last_stamp is not None:
+            step = (stamp_ns - self.last_stamp) * 1e-9
+            if not (0.5 * p.dt <= step <= 1.5 * p.dt):
+                self._drop()
+                status = "gap_reset"
+        self.last_stamp = stamp_ns
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u))):
+            self._drop()
+            return TickResult(False, "invalid", 0, -math.inf)
+        # shift history, append current sample
+        self.y_hist = np.vstack([self.y_hist[1:], y[None]])
+        self.u_hist = np.vstack([self.u_hist[1:], u[None]])
+        self.in_segment += 1
+        hist = self.mm.estimator.history
+        if self.in_segment > hist:
+            x0 = self.mm.estimator.estimate(p, self.y_hist, self.u_hist, np.array([hist]))
+            self.X = np.hstack([x0, self.X])
+            self.ages = np.concatenate([[0], self.ages])
+            self.starts = np.concatenate([[self.tick_index], self.starts])
+        res = TickResult(True, status, 0, math.inf)
+        if self.X.shape[1]:
+            U = np.repeat(u[:, None], self.X.shape[1], axis=1)
+            ya = y[:, None] - predict_output(p, self.X, U)
+            if self.mm.scalar:
+                Ny = matvec(self.mm.normals[0], ya)[0]
+                mp = self.mm.dp_vec[self.ages] - Ny
+                mm = self.mm.dm_vec[self.ages] + Ny
+                j, i = int(np.argmin(mp)), int(np.argmin(mm))
+                if mp[j] <= mm[i]:
+                    worst = (float(mp[j]), j, float(Ny[j]), float(self.mm.dp_vec[self.ages[j]]))
+                else:
+                    worst = (float(mm[i]), i, float(-Ny[i]), float(self.mm.dm_vec[self.ages[i]]))
+            else:
+                worst = (math.inf, -1, 0.0, 0.0)
+                for col in range(self.X.shape[1]):
+                    k = int(self.ages[col])
+                    Ny = matvec(self.mm.normals[k], ya[:, col:col + 1])[:, 0]
+                    mp = self.mm.dp[k] - Ny
+                    mm = self.mm.dm[k] + Ny
+                    j, i = int(np.argmin(mp)), int(np.argmin(mm))
+                    if mp[j] < worst[0]:
+                        worst = (float(mp[j]), col, float(Ny[j]), float(self.mm.dp[k][j]))
+                    if mm[i] < worst[0]:
+                        worst = (float(mm[i]), col, float(-Ny[i]), float(self.mm.dm[k][i]))
+            margin, col, dev, bound = worst
+            res = TickResult(margin >= 0, "ok" if margin >= 0 else "violation", self.X.shape[1], margin,
+                             int(self.ages[col]), int(self.starts[col]), dev, bound)
+            if status == "gap_reset" and res.status == "ok":
+                res.status = "gap_reset"
+            self.X = advance(p, self.X, U)
+            self.ages = self.ages + 1
+            keep = self.ages <= self.mm.horizon
+            self.X, self.ages, self.starts = self.X[:, keep], self.ages[keep], self.starts[keep]
+        return res
+
+    def _drop(self):
+        n = self.mm.plant.A.shape[0]
+        self.X = np.zeros((n, 0))
+        self.ages = np.zeros(0, dtype=np.int64)
+        self.starts = np.zeros(0, dtype=np.int64)
+        self.in_segment = 0
