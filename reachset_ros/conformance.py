@@ -28,22 +28,40 @@ from .errors import InfeasibleError, ReachsetError
 
 
 # ------------------------------------------------------------------ deterministic kernels
+_PLANS = {}
+
+
+def _plan(M):
+    key = (M.shape, M.tobytes())
+    plan = _PLANS.get(key)
+    if plan is None:
+        plan = tuple(tuple((j, float(M[i, j])) for j in range(M.shape[1]) if M[i, j] != 0.0)
+                     for i in range(M.shape[0]))
+        if len(_PLANS) > 256:
+            _PLANS.clear()
+        _PLANS[key] = plan
+    return plan
+
+
 def matvec(M, X):
     """``M @ X`` for ``X`` of shape (n, N) with a fixed, length-independent summation order.
 
-    Element-wise multiply-adds over the nonzero entries of ``M`` in row-major order; the
-    result for one column does not depend on how many columns are processed together,
-    unlike BLAS. Used by every code path that computes nominal predictions.
+    Element-wise multiply-adds over the nonzero entries of ``M`` in row-major order
+    (a factor of exactly 1.0 is skipped, which does not change any result); the result for
+    one column does not depend on how many columns are processed together, unlike BLAS.
+    Used by every code path that computes nominal predictions, so batch and online
+    computations agree to the bit.
     """
     M = np.asarray(M, dtype=np.float64)
     out = np.zeros((M.shape[0], X.shape[1]))
-    for i in range(M.shape[0]):
+    for i, row in enumerate(_plan(M)):
         acc = None
-        for j in range(M.shape[1]):
-            a = M[i, j]
-            if a != 0.0:
-                term = a * X[j]
-                acc = term if acc is None else acc + term
+        for j, a in row:
+            term = X[j] if a == 1.0 else a * X[j]
+            if acc is None:
+                acc = term
+            else:
+                acc = acc + term
         if acc is not None:
             out[i] = acc
     return out

@@ -25,7 +25,8 @@ class Estimator:
     Attributes
     ----------
     name : str
-        ``"fd"``: causal finite differences of positions (LWA-4P plant of Appendix A);
+        ``"fd"``: causal finite differences of positions, corrected with the model's input
+        response (LWA-4P plant of Appendix A; exact on noise-free model data);
         ``"output"``: generic plant, x0 = pinv(C) y[m] (states not seen by C set to 0).
     history : int
         Number of past ticks (before m) the estimator reads, all in the same segment.
@@ -35,7 +36,7 @@ class Estimator:
 
     @property
     def history(self) -> int:
-        return {"fd": 1, "output": 0}[self.name]
+        return {"fd": 3, "output": 0}[self.name]
 
     def as_dict(self):
         return {"name": self.name}
@@ -65,22 +66,31 @@ class Estimator:
 
 
 def _fd(plant, y, u, m):
-    """Appendix-A state [q[k-1], q[k], qdot[k], d[k], u_p[k-1]] from y[m], y[m-1], u[m-1].
+    """Appendix-A state [q[k-1], q[k], qdot[k], d[k], u_p[k-1]] from y[m-1..m], u[m-3..m-1].
 
-    y[k] = q[k-1] (one-sample output delay); qdot ~ (y[m] - y[m-1]) / dt; q[k] ~ y[m] + dt qdot;
-    the disturbance state starts at 0; the delayed input is the recorded u[m-1].
+    Causal finite differences corrected with the model's own input response, so that the
+    estimate is exact on data that follow the nominal model (d = 0): with y[k] = q[k-1],
+
+        qdot[m-2] = (y[m] - y[m-1]) / dt - dt/2 u[m-3]
+        qdot[m-1] = qdot[m-2] + dt u[m-3]
+        q[m]      = y[m] + dt qdot[m-1] + dt^2/2 u[m-2]
+        qdot[m]   = qdot[m-1] + dt u[m-2]
+
+    and x0 = [y[m], q[m], qdot[m], 0, u[m-1]]. The disturbance state starts at 0.
     """
     if plant.A.shape[0] != 5 or y.shape[1] != 1:
         raise ReachsetError("estimator 'fd' is for the per-joint LWA-4P plant (5 states, 1 output); "
                             "use 'output' for other plants")
     dt = plant.dt
     ym = y[m, 0]
-    v = (ym - y[m - 1, 0]) / dt
+    u1, u2, u3 = u[m - 1, 0], u[m - 2, 0], u[m - 3, 0]
+    v2 = (ym - y[m - 1, 0]) / dt - 0.5 * dt * u3
+    v1 = v2 + dt * u3
     X0 = np.zeros((5, len(m)))
     X0[0] = ym
-    X0[1] = ym + v * dt
-    X0[2] = v
-    X0[4] = u[m - 1, 0]
+    X0[1] = ym + dt * v1 + 0.5 * dt * dt * u2
+    X0[2] = v1 + dt * u2
+    X0[4] = u1
     return X0
 
 

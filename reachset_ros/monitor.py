@@ -165,3 +165,119 @@ class JointMonitor:
         self.ages = np.zeros(0, dtype=np.int64)
         self.starts = np.zeros(0, dtype=np.int64)
         self.in_segment = 0
+
+
+class Monitor:
+    """Mutable monitor state of several joints with one-dimensional outputs, vectorised.
+
+    All joints share plant, estimator and horizon (their sets differ). Test cases live in a
+    ring of k*+1 slots per joint (slot = start tick mod (k*+1)), so a tick allocates
+    nothing per test case; nominal states of all joints and slots are advanced together
+    with the same element-wise kernels as :func:`reachset_ros.conformance.sweep`, hence
+    verdicts equal ``reachset check``'s exactly.
+
+    Syntax::
+
+        mon = Monitor([MonitorModel.from_model(model, j) for j in joints])
+        res = mon.tick(stamp_ns, y, u)      # y, u: shape (J,)
+
+    Each joint is reset on its own invalid sample; a stamp step outside [0.5, 1.5] dt
+    resets all joints (a gap: test cases never span it).
+    """
+
+    def __init__(self, models):
+        self.models = tuple(models)
+        m0 = self.models[0]
+        for m in self.models:
+            if not m.scalar:
+                raise ValueError(f"joint {m.name}: Monitor needs one-dimensional outputs; use JointMonitor")
+            if m.horizon != m0.horizon or m.estimator != m0.estimator or m.plant is not m0.plant and not (
+                    np.array_equal(m.plant.A, m0.plant.A) and np.array_equal(m.plant.B, m0.plant.B)
+                    and np.array_equal(m.plant.C, m0.plant.C) and np.array_equal(m.plant.D, m0.plant.D)):
+                raise ValueError("all joints of a Monitor must share plant, estimator and horizon")
+        self.plant, self.estimator, self.horizon = m0.plant, m0.estimator, m0.horizon
+        self.names = tuple(m.name for m in self.models)
+        self.J, self.S = len(self.models), self.horizon + 1
+        self.dp = np.stack([m.dp_vec for m in self.models])   # (J, S) offsets per k
+        self.dm = np.stack([m.dm_vec for m in self.models])
+        self._jidx = np.repeat(np.arange(self.J), self.S).reshape(self.J, self.S)
+        self.reset()
+
+    def reset(self):
+        n, H = self.plant.A.shape[0], self.estimator.history
+        self.X = np.zeros((n, self.J * self.S))
+        self.start = np.full((self.J, self.S), -1, dtype=np.int64)
+        self.y_hist = np.zeros((self.J, H + 1))
+        self.u_hist = np.zeros((self.J, H + 1))
+        self.in_segment = np.zeros(self.J, dtype=np.int64)
+        self.last_stamp = None
+        self.tick_index = -1
+
+    def tick(self, stamp_ns, y, u):
+        """Check one tick; returns a dict of per-joint arrays.
+
+        Keys: ``status`` (list of ok | violation | invalid | gap_reset), ``margin`` (J,),
+        ``checked`` (J,), ``step`` (J,), ``start_tick`` (J,), ``deviation`` (J,), ``bound`` (J,).
+        """
+        p, H, S, J = self.plant, self.estimator.history, self.S, self.J
+        self.tick_index += 1
+        t = self.tick_index
+        y = np.asarray(y, dtype=np.float64).reshape(J)
+        u = np.asarray(u, dtype=np.float64).reshape(J)
+        gap = False
+        if self.last_stamp is not None:
+            step = (int(stamp_ns) - self.last_stamp) * 1e-9
+            if not (0.5 * p.dt <= step <= 1.5 * p.dt):
+                gap = True
+                self.start[:] = -1
+                self.in_segment[:] = 0
+        self.last_stamp = int(stamp_ns)
+        valid = np.isfinite(y) & np.isfinite(u)
+        if not valid.all():
+            self.start[~valid] = -1
+            self.in_segment[~valid] = 0
+        self.y_hist[:, :-1] = self.y_hist[:, 1:]
+        self.y_hist[:, -1] = y
+        self.u_hist[:, :-1] = self.u_hist[:, 1:]
+        self.u_hist[:, -1] = u
+        self.in_segment[valid] += 1
+        slot = t % S
+        self.start[:, slot] = -1
+        new = self.in_segment > H
+        if new.any():
+            js = np.flatnonzero(new)
+            yh = self.y_hist.reshape(-1, 1)
+            uh = self.u_hist.reshape(-1, 1)
+            x0 = self.estimator.estimate(p, yh, uh, js * (H + 1) + H)
+            self.X[:, js * S + slot] = x0
+            self.start[js, slot] = t
+        active = self.start >= 0
+        ages = np.where(active, t - self.start, 0)
+        U = np.repeat(u, S)[None, :]
+        ya = np.repeat(y, S) - predict_output(p, self.X, U)[0]
+        Ny = matvec(self.models[0].normals[0], ya[None, :])[0].reshape(J, S)
+        mp = np.where(active, self.dp[self._jidx, ages] - Ny, np.inf)
+        mm = np.where(active, self.dm[self._jidx, ages] + Ny, np.inf)
+        jp, jm = mp.argmin(axis=1), mm.argmin(axis=1)
+        r = np.arange(J)
+        vp, vm = mp[r, jp], mm[r, jm]
+        use_p = vp <= vm
+        col = np.where(use_p, jp, jm)
+        margin = np.where(use_p, vp, vm)
+        checked = active.sum(axis=1)
+        status = []
+        for j in range(J):
+            if not valid[j]:
+                status.append("invalid")
+            elif margin[j] < 0:
+                status.append("violation")
+            else:
+                status.append("gap_reset" if gap else "ok")
+        k = ages[r, col]
+        dev = np.where(use_p, Ny[r, col], -Ny[r, col])
+        bound = np.where(use_p, self.dp[r, k], self.dm[r, k])
+        self.X = advance(p, self.X, U)
+        has = checked > 0
+        return {"status": status, "margin": np.where(valid, margin, -np.inf), "checked": checked,
+                "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
+                "deviation": np.where(has, dev, 0.0), "bound": np.where(has, bound, 0.0)}
