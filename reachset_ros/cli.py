@@ -12,13 +12,20 @@ from .commands import MODULES
 from .errors import ReachsetError
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Usage errors as one line on stderr and exit status 2 (``--help`` shows the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="reachset",
         description="Reachset-conformant identification, controller synthesis and conformance "
                     "checking for feedback-linearized robots (Liu, Schuermann, Althoff, IEEE T-RO).")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_OneLineParser)
     for modname in MODULES:
         mod = importlib.import_module(f".commands.{modname}", __package__)
         sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)

@@ -27,7 +27,6 @@ __all__ = ["Zonotope", "halfspace_normals", "box", "MAX_FACETS"]
 #: Default limit on the number of facet pairs ``halfspaces`` will enumerate.
 MAX_FACETS = 100_000
 
-_REL_TOL = 1e-12
 
 
 def _readonly(a):
@@ -100,6 +99,8 @@ class Zonotope:
         return self._G.shape[1]
 
     def __repr__(self):
+        if self._G.size <= 24:
+            return f"Zonotope({self._c.tolist()!r}, {self._G.tolist()!r})"
         return f"Zonotope(dim={self.dim}, generators={self.n_generators})"
 
     # ------------------------------------------------------------------ constructors
@@ -370,9 +371,9 @@ class Zonotope:
 
         Syntax: ``inside = Z.contains(p)``; ``mask = Z.contains(P)`` for rows of ``P``
 
-        A point ``p`` is inside iff ``min ||beta||_inf s.t. G beta = p - c`` is at most
-        ``1 + tol`` (solved as a linear programme with scipy's HiGHS) and ``p - c`` lies in
-        ``span(G)`` within ``tol`` (scaled by the zonotope's size). One-dimensional
+        A point ``p`` is inside iff ``min ||beta||_inf`` subject to
+        ``||G beta - (p - c)||_inf <= tol * size`` is at most ``1 + tol`` (a linear programme
+        solved with scipy's HiGHS); ``size = max(max(delta), max|c|)``. One-dimensional
         zonotopes and axis-aligned boxes use an interval check instead.
 
         Parameters
@@ -391,17 +392,18 @@ class Zonotope:
         if P.shape[1] != self.dim:
             raise ValueError(f"points of dimension {P.shape[1]} tested against a {self.dim}-dim zonotope")
         G = _compact_generators(self._G, 1e-14)
-        scale = max(1.0, float(np.abs(G).sum(axis=1).max(initial=0.0)))
+        scale = max(float(np.abs(G).sum(axis=1).max(initial=0.0)), float(np.abs(self._c).max()), 1e-300)
         D = P - self._c
-        nonzero_rows = np.count_nonzero(G, axis=1)
         if G.shape[1] == 0:
             res = np.all(np.abs(D) <= tol * scale, axis=1)
-        elif self.dim == 1 or np.all(nonzero_rows <= 1) and np.all(np.count_nonzero(G, axis=0) == 1):
+        elif np.all(np.count_nonzero(G, axis=0) == 1):
             # interval: each generator moves one coordinate only
             r = np.abs(G).sum(axis=1)
             res = np.all(np.abs(D) <= r * (1 + tol) + tol * scale, axis=1)
         else:
-            res = np.array([_lp_contains(G, dv, tol, scale) for dv in D], dtype=bool)
+            r = np.abs(G).sum(axis=1)
+            res = np.all(np.abs(D) <= r * (1 + tol) + tol * scale, axis=1)  # interval hull first
+            res[res] = [_lp_contains(G, dv, tol, scale) for dv in D[res]]
         return bool(res[0]) if single else res
 
     def contained_in_interval(self, lo, hi, tol=0.0):
@@ -480,26 +482,22 @@ def _compact_generators(G, tol=1e-12):
     G = np.asarray(G, dtype=float)
     if G.shape[1] == 0:
         return G
-    lengths = np.linalg.norm(G, axis=0)
+    lengths = np.abs(G).max(axis=0)  # infinity norm: no underflow for tiny generators
     gmax = lengths.max()
     if gmax == 0:
         return G[:, :0]
-    G = G[:, lengths > tol * gmax]
-    lengths = lengths[lengths > tol * gmax]
+    keep = lengths > tol * gmax
+    G, lengths = G[:, keep], lengths[keep]
     U = G / lengths
-    # canonical sign: first entry with |.| > tol positive
-    first = np.argmax(np.abs(U) > 1e-9, axis=0)
-    sgn = np.sign(U[first, np.arange(U.shape[1])])
-    U = U * sgn
-    merged = []
-    used = np.zeros(U.shape[1], dtype=bool)
-    for j in range(U.shape[1]):
-        if used[j]:
-            continue
-        same = (~used) & (np.abs(U - U[:, [j]]).max(axis=0) <= max(tol, 1e-12) * 10)
-        used |= same
-        merged.append(U[:, j] * lengths[same].sum())
-    return np.column_stack(merged)
+    # canonical sign: the largest-magnitude entry (first on ties) is positive
+    piv = np.argmax(np.abs(U) > 1 - 1e-9, axis=0)
+    U = U * np.sign(U[piv, np.arange(U.shape[1])])
+    keys = np.round(U / max(tol, 1e-12) / 10).astype(np.int64)
+    _, first, inv = np.unique(keys.T, axis=0, return_index=True, return_inverse=True)
+    total = np.zeros(first.size)
+    np.add.at(total, inv.ravel(), lengths)
+    order = np.argsort(first)
+    return U[:, first[order]] * total[order]
 
 
 def _orth_split(G, tol):
@@ -520,13 +518,11 @@ def _canonical_sign(N, tol=1e-9):
 
 
 def _unique_rows(N, tol):
+    """Rows of ``N`` without near-duplicates (rounded to ``tol``), in first-occurrence order."""
     if N.shape[0] <= 1:
         return N
-    keep = []
-    for i in range(N.shape[0]):
-        if all(np.abs(N[i] - N[k]).max() > tol for k in keep):
-            keep.append(i)
-    return N[keep]
+    _, first = np.unique(np.round(N / tol).astype(np.int64), axis=0, return_index=True)
+    return N[np.sort(first)]
 
 
 def _cross_normals(G):
@@ -602,23 +598,21 @@ def halfspace_normals(G, max_facets=MAX_FACETS, tol=1e-10):
 
 
 def _lp_contains(G, dv, tol, scale):
-    """LP point containment: min t s.t. G beta = dv, |beta_j| <= t (in span(G) coordinates)."""
+    """LP point containment: ``min t`` s.t. ``|G beta - dv| <= tol*scale``, ``|beta_j| <= t``."""
     from scipy.optimize import linprog
 
-    U, Uperp = _orth_split(G, 1e-12)
-    if Uperp.shape[1] and np.abs(Uperp.T @ dv).max() > tol * scale:
-        return False
-    Gr = U.T @ G
-    b = U.T @ dv
-    m = G.shape[1]
-    # variables [beta (m), t]
+    n, m = G.shape
+    gs = np.abs(G).max()
+    Gn, b, tau = G / gs, dv / gs, tol * scale / gs  # HiGHS ignores entries below 1e-9: normalise
     c = np.zeros(m + 1)
     c[-1] = 1.0
-    A_ub = np.block([[np.eye(m), -np.ones((m, 1))], [-np.eye(m), -np.ones((m, 1))]])
-    b_ub = np.zeros(2 * m)
-    A_eq = np.hstack([Gr, np.zeros((Gr.shape[0], 1))])
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b,
-                  bounds=[(None, None)] * m + [(0, None)], method="highs")
+    I, one = np.eye(m), np.ones((m, 1))
+    zero = np.zeros((n, 1))
+    A_ub = np.block([[I, -one], [-I, -one], [Gn, zero], [-Gn, zero]])
+    b_ub = np.concatenate([np.zeros(2 * m), b + tau, -b + tau])
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * m + [(0, None)], method="highs")
+    if res.status == 2:  # infeasible: p - c is not in span(G) within the tolerance
+        return False
     if res.status != 0:
         raise RuntimeError(f"containment LP failed: {res.message}")
     return bool(res.fun <= 1.0 + tol)

@@ -8,7 +8,7 @@ import json
 import sys
 
 #: Modules under reachset_ros.commands, in the order ``reachset --help`` lists them.
-MODULES = ["selftest", "identify", "check", "replay"]
+MODULES = ["selftest", "analyze", "identify", "check", "replay"]
 
 
 def emit(args, result, human=None):

@@ -1,5 +1,26 @@
-"""``reachset identify``: reachset-conformant identification (Theorem 1, HiGHS LP)."""
+"""``reachset identify``: reachset-conformant identification (Theorem 1, HiGHS LP).
+
+Options beyond the paper's separate approach:
+
+- ``--cost quadratic``: minimise ||G'_W diag a_W||_F^2 + ||G'_V diag a_V||_F^2 under the same
+  Theorem-1 constraints (OSQP through cvxpy, then made sound in floating point).
+- ``--method corollary1``: the conservative state-based variant (paper Corollary 1); it
+  needs an estimator consistent with the model and fails with a message naming the test
+  case and state direction otherwise (always on noisy LWA-4P data with ``fd``).
+- ``--validate BAG...``: margin calibration on held-out bags. Each joint's identified sets
+  are checked on the validation bags (``reachset check``'s arithmetic) with the sets scaled
+  by 1 + inflation for inflation 0 and each ``--inflation-grid`` value; per joint the
+  smallest grid value with no held-out violation is chosen (the largest grid value,
+  flagged, if none). The model's ``inflation`` field (one value for all joints, as the
+  monitor uses it) is the largest per-joint choice. For that inflation a test fault is
+  injected into the validation data, a constant acceleration of ``--fault-accel`` rad/s^2
+  (the measured position gets accel/2 * t^2 from the onset, the middle of the longest
+  validation segment), and the detection delay (ticks from onset to first violation) is
+  reported.
+"""
 import sys
+
+import numpy as np
 
 from .. import conformance as cf
 from .. import model as mdl
@@ -11,6 +32,8 @@ from ._bagargs import add_bag_arguments, check_out_path, load_series
 
 NAME = "identify"
 HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
+
+DEFAULT_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 
 
 def add_arguments(p):
@@ -24,10 +47,26 @@ def add_arguments(p):
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
                    help="lower bounds on [alpha_W..., alpha_V...] (e.g. encoder resolution)")
     p.add_argument("--dt", type=float, default=0.004, help="sampling time, s")
+    p.add_argument("--cost", default="linear", choices=["linear", "quadratic"],
+                   help="linear: ||W||+||V|| (paper, HiGHS); quadratic: squared Frobenius norm of the "
+                        "scaled generators (OSQP)")
+    p.add_argument("--method", default="theorem1", choices=["theorem1", "corollary1"],
+                   help="Theorem 1 (output-based, default) or Corollary 1 (state-based, conservative)")
+    p.add_argument("--validate", nargs="+", metavar="VBAG",
+                   help="held-out bags: report violation rates and calibrate the model's inflation")
+    p.add_argument("--inflation-grid", type=float, nargs="+", metavar="F",
+                   help=f"inflations tried on the validation bags (default {' '.join(map(str, DEFAULT_GRID))})")
+    p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
+                   help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
 
 
-def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=None, thm=None):
-    """Identify each joint of ``series``; returns {name: (IdentifiedSets, Deviations, settled_k)}."""
+def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=None, thm=None,
+                    cost="linear", method="theorem1"):
+    """Identify each joint of ``series``; returns {name: (IdentifiedSets, Deviations, settled_k)}.
+
+    ``settled_k`` (Remark 3) is computed with the linear cost; it is None for Corollary 1,
+    which needs no horizon.
+    """
     thm = thm or cf.Theorem1.build(plant, horizon)
     out = {}
     for name, s in series.items():
@@ -36,12 +75,66 @@ def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=Non
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: {e}") from None
         try:
-            sets = cf.identify(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
-            settled, _ = cf.stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+            if method == "corollary1":
+                sets = cf.identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
+                                              alpha_lower=alpha_lower, horizon=horizon, thm=thm)
+                settled = None
+            else:
+                if cost == "quadratic":
+                    sets = cf.identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                else:
+                    sets = cf.identify(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                settled, _ = cf.stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: {e}") from None
         out[name] = (sets, dev, settled)
     return out, thm
+
+
+def _grid(values):
+    g = DEFAULT_GRID if values is None else tuple(values)
+    if not all(np.isfinite(v) and v >= 0 for v in g):
+        raise ReachsetError("--inflation-grid: values must be finite and >= 0")
+    return sorted(set(float(v) for v in g) | {0.0})
+
+
+def validate(plant, est, horizon, thm, joints, vseries, grid, fault_accel):
+    """Held-out validation of identified joints; returns (inflation, {name: validation dict})."""
+    per = {}
+    for name, js in joints.items():
+        s = vseries[name]
+        try:
+            rows, chosen, flagged = cf.validation_grid(plant, thm, est, js, s.y, s.u, s.segments,
+                                                       horizon, grid)
+        except ReachsetError as e:
+            raise ReachsetError(f"joint {name}: validation: {e}") from None
+        per[name] = (rows, chosen, flagged)
+    inflation = max(c for _, c, _ in per.values())
+    out = {}
+    for name, (rows, chosen, flagged) in per.items():
+        s = vseries[name]
+        for r in rows:
+            t = r.pop("first_violation_tick")
+            r["first_violation_ns"] = int(s.stamps[t]) if t >= 0 else None
+        model_row = next(r for r in rows if r["inflation"] == inflation)   # same grid for all joints
+        try:
+            fault = cf.detection_delay(plant, thm, est, joints[name].xi(inflation), s.y, s.u, s.segments,
+                                       horizon, fault_accel, plant.dt)
+        except ReachsetError as e:
+            raise ReachsetError(f"joint {name}: validation: {e}") from None
+        fault["onset_ns"] = int(s.stamps[fault["onset_tick"]])
+        fault["kind"] = "constant acceleration added to the measured position: y += accel/2 * t^2"
+        out[name] = {"checked_ticks": rows[0]["checked_ticks"],
+                     "test_cases": rows[0]["test_cases"],
+                     "at_zero": rows[0],
+                     "grid": rows,
+                     "chosen_inflation": chosen,
+                     "flagged": flagged,
+                     "model_inflation": inflation,
+                     "at_model_inflation": {k: model_row[k] for k in
+                                            ("violating_ticks", "violation_rate", "violated_test_cases")},
+                     "fault": fault}
+    return inflation, out
 
 
 def run(args):
@@ -49,11 +142,20 @@ def run(args):
         raise ReachsetError("--horizon must be >= 0")
     if args.dt <= 0:
         raise ReachsetError("--dt must be positive")
+    if not np.isfinite(args.fault_accel):
+        raise ReachsetError("--fault-accel must be finite")
+    if args.inflation_grid is not None and args.validate is None:
+        raise ReachsetError("--inflation-grid needs --validate")
+    grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
     plant = lwa4p_joint_plant(dt=args.dt)
     est = Estimator(args.estimator)
     series, report = load_series(args.bags, args.joints, args.dt)
-    results, _ = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower)
+    vseries = vreport = None
+    if args.validate:
+        vseries, vreport = load_series(args.validate, list(series), args.dt)
+    results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower,
+                                   cost=args.cost, method=args.method)
     joints, js = {}, {}
     for name, (sets, dev, settled) in results.items():
         joints[name] = mdl.JointSets(tuple(sets.alpha_w.tolist()), tuple(sets.alpha_v.tolist()),
@@ -63,14 +165,37 @@ def run(args):
                     "c_w": sets.c_w.tolist(), "c_v": sets.c_v.tolist(),
                     "test_cases": dev.test_cases, "horizon": args.horizon,
                     "checks": dev.checks, "stable_horizon": settled,
-                    "soundness_inflation": sets.soundness_bump}
-    result = {"joints": js, "data": report.as_dict()}
+                    "soundness_inflation": float(sets.soundness_bump),
+                    "objective": float(sets.cost)}
+    inflation = 0.0
+    result = {"joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method}
+    if vseries is not None:
+        inflation, val = validate(plant, est, args.horizon, thm, joints, vseries, grid, args.fault_accel)
+        for name, v in val.items():
+            js[name]["validation"] = v
+        result["inflation"] = inflation
+        result["validation_data"] = vreport.as_dict()
     if out is not None:
+        prov = mdl.provenance(args.bags, "reachset " + " ".join(sys.argv[1:]))
+        if args.validate:
+            prov["validation"] = {"bags": mdl.provenance(args.validate, "")["bags"],
+                                  "inflation_grid": grid, "fault_accel": args.fault_accel}
         m = mdl.ConformanceModel(plant, {"kind": "lwa4p_joint", "dt": args.dt}, est, args.horizon, joints,
-                                 0.0, mdl.provenance(args.bags, "reachset " + " ".join(sys.argv[1:])))
+                                 inflation, prov)
         mdl.save(m, out)
         result["model"] = str(out)
-    emit(args, result, "\n".join(
-        f"{n}: alpha_w={v['alpha_w']} alpha_v={v['alpha_v']} test_cases={v['test_cases']} "
-        f"(sets stop changing at k={v['stable_horizon']})" for n, v in js.items())
-        + (f"\nmodel written to {out}" if out else ""))
+    lines = [f"{n}: alpha_w={v['alpha_w']} alpha_v={v['alpha_v']} test_cases={v['test_cases']} "
+             f"(sets stop changing at k={v['stable_horizon']})" for n, v in js.items()]
+    for n, v in js.items():
+        val = v.get("validation")
+        if val:
+            f = val["fault"]
+            lines.append(
+                f"{n}: held-out violation rate {val['at_zero']['violation_rate']:.3g} at inflation 0; "
+                f"smallest conformant inflation {val['chosen_inflation']}"
+                + (" (FLAGGED: no grid value is conformant)" if val["flagged"] else "")
+                + f"; {f['accel']} rad/s^2 fault at inflation {val['model_inflation']} "
+                + (f"detected after {f['delay_ticks']} ticks" if f["detected"] else "NOT detected"))
+    if vseries is not None:
+        lines.append(f"model inflation: {inflation}")
+    emit(args, result, "\n".join(lines) + (f"\nmodel written to {out}" if out else ""))
