@@ -7,6 +7,12 @@ PACKAGE = "reachset_ros"
 
 NODES = {
     "plant_input_talker": "reachset_ros.nodes.talker:main",
+    "sim_node": "reachset_ros.nodes.sim_node:main",
+    "reference_node": "reachset_ros.nodes.reference_node:main",
+    "observer_node": "reachset_ros.nodes.observer_node:main",
+    "controller_node": "reachset_ros.nodes.controller_node:main",
+    "monitor_node": "reachset_ros.nodes.monitor_node:main",
+    "recorder_node": "reachset_ros.nodes.recorder_node:main",
 }
 SCRIPTS = ["reachset = reachset_ros.cli:main"] + [f"{k} = {v}" for k, v in NODES.items()]
 

@@ -104,6 +104,10 @@ def _floats(v, name, n=None):
     return tuple(a)
 
 
+def _fl(v):
+    return [float(x) for x in v]
+
+
 def to_dict(model: ConformanceModel) -> dict:
     return {
         "format": FORMAT,
@@ -111,8 +115,8 @@ def to_dict(model: ConformanceModel) -> dict:
         "estimator": model.estimator.as_dict(),
         "horizon": int(model.horizon),
         "inflation": float(model.inflation),
-        "joints": {name: {"alpha_w": list(j.alpha_w), "alpha_v": list(j.alpha_v),
-                          "c_w": list(j.c_w), "c_v": list(j.c_v),
+        "joints": {name: {"alpha_w": _fl(j.alpha_w), "alpha_v": _fl(j.alpha_v),
+                          "c_w": _fl(j.c_w), "c_v": _fl(j.c_v),
                           "test_cases": int(j.test_cases), "horizon": int(j.horizon),
                           **({"gains": j.gains} if j.gains else {}),
                           **({"extra": j.extra} if j.extra else {})}

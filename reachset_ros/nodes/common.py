@@ -1,0 +1,96 @@
+"""Small helpers shared by the nodes: stamps, QoS profiles, parameter descriptors, main()."""
+import sys
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+#: /safe_stop: reliable + transient local, so late subscribers (a restarted controller) see it.
+SAFE_STOP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL, history=HistoryPolicy.KEEP_LAST)
+#: per-tick data: reliable, a few ticks of history.
+TICK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def to_stamp(msg_stamp, ns: int):
+    msg_stamp.sec = int(ns // 1_000_000_000)
+    msg_stamp.nanosec = int(ns % 1_000_000_000)
+    return msg_stamp
+
+
+def desc(description, lo=None, hi=None, integer=False, read_only=False):
+    """A ParameterDescriptor with an optional range."""
+    d = ParameterDescriptor(description=description, read_only=read_only)
+    if lo is not None and hi is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi))]
+    return d
+
+
+def spin_node(node_cls, args=None, **kwargs):
+    """The usual ``main``: init, spin until Ctrl-C or shutdown, clean up."""
+    rclpy.init(args=args if args is not None else sys.argv)
+    node = node_cls(**kwargs)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def parameter_value(v):
+    """An rcl_interfaces ParameterValue of a Python value (bool, int, float, str, lists)."""
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    pv = ParameterValue()
+    if isinstance(v, bool):
+        pv.type, pv.bool_value = ParameterType.PARAMETER_BOOL, v
+    elif isinstance(v, int):
+        pv.type, pv.integer_value = ParameterType.PARAMETER_INTEGER, v
+    elif isinstance(v, float):
+        pv.type, pv.double_value = ParameterType.PARAMETER_DOUBLE, v
+    elif isinstance(v, str):
+        pv.type, pv.string_value = ParameterType.PARAMETER_STRING, v
+    elif isinstance(v, (list, tuple)) and v and all(isinstance(x, str) for x in v):
+        pv.type, pv.string_array_value = ParameterType.PARAMETER_STRING_ARRAY, list(v)
+    elif isinstance(v, (list, tuple)):
+        pv.type, pv.double_array_value = ParameterType.PARAMETER_DOUBLE_ARRAY, [float(x) for x in v]
+    else:
+        raise TypeError(f"unsupported parameter value {v!r}")
+    return pv
+
+
+def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomically=True):
+    """Set parameters of node ``target`` through its parameter service.
+
+    Returns ``(ok, reason)``; with ``atomically`` all are applied together or none.
+    """
+    from rcl_interfaces.msg import Parameter
+    from rcl_interfaces.srv import SetParameters, SetParametersAtomically
+    srv_type = SetParametersAtomically if atomically else SetParameters
+    suffix = "set_parameters_atomically" if atomically else "set_parameters"
+    client = node.create_client(srv_type, f"/{target}/{suffix}")
+    try:
+        if not client.wait_for_service(timeout_sec=timeout):
+            return False, f"{target}: parameter service not available"
+        req = srv_type.Request()
+        req.parameters = [Parameter(name=k, value=parameter_value(v)) for k, v in values.items()]
+        fut = client.call_async(req)
+        rclpy.spin_until_future_complete(node, fut, timeout_sec=timeout)
+        if not fut.done():
+            return False, f"{target}: parameter service timed out"
+        res = fut.result()
+        results = [res.result] if atomically else list(res.results)
+        bad = [r.reason for r in results if not r.successful]
+        return (not bad), "; ".join(bad)
+    finally:
+        node.destroy_client(client)

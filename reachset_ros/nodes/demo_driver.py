@@ -1,0 +1,152 @@
+"""The demo's conductor: a node that starts the others, records, synthesises, applies, injects.
+
+``run_demo`` runs the whole story of ``reachset demo`` (see :mod:`reachset_ros.commands.demo`):
+every node is a separate process talking over DDS; this process only starts/stops them,
+calls their services and parameters, and listens to ``/safe_stop`` and ``/sim/fault_onset``.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from reachset_msgs.msg import SafeStop
+from reachset_msgs.srv import Synthesize
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from .. import launch
+from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
+
+JOINTS = ["arm_1_joint", "arm_2_joint", "arm_3_joint", "arm_4_joint", "arm_5_joint", "arm_6_joint"]
+CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
+MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
+
+
+class DemoDriver(Node):
+    def __init__(self):
+        super().__init__("demo_driver")
+        self.stops = []
+        self.onsets = []
+        self.create_subscription(SafeStop, "safe_stop", lambda m: self.stops.append(m), SAFE_STOP_QOS)
+        self.create_subscription(Header, "sim/fault_onset", lambda m: self.onsets.append(m), SAFE_STOP_QOS)
+
+    def spin_for(self, seconds, until=None):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(self, timeout_sec=0.05)
+            if until is not None and until():
+                return True
+        return False
+
+    def call(self, srv_type, name, request, timeout=600.0):
+        client = self.create_client(srv_type, name)
+        try:
+            if not client.wait_for_service(timeout_sec=30.0):
+                raise RuntimeError(f"service {name} not available")
+            fut = client.call_async(request)
+            rclpy.spin_until_future_complete(self, fut, timeout_sec=timeout)
+            if not fut.done():
+                raise RuntimeError(f"service {name} timed out after {timeout:.0f} s")
+            return fut.result()
+        finally:
+            self.destroy_client(client)
+
+
+def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
+             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 5.0), initial=None):
+    """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
+                          "h1": [15.0], "h2": [30.0], "eps": [0.01]}
+    out = {"phases": []}
+    procs = []
+    own = not rclpy.ok()
+    if own:
+        rclpy.init()
+    driver = DemoDriver()
+    try:
+        common = {"joints": JOINTS}
+        procs.append(launch.start("sim_node", {"seed": seed, "realistic": True}, workdir))
+        procs.append(launch.start("reference_node", {"seed": seed}, workdir))
+        procs.append(launch.start("observer_node", {**common, **initial}, workdir))
+        procs.append(launch.start("controller_node", {**common, **initial}, workdir))
+        procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir))
+        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis")}, workdir))
+
+        def record_phase(name, seconds, topics, path):
+            rec = launch.start("recorder_node", {"output": str(path), "topics": topics}, workdir,
+                               node_name=f"recorder_node_{name}")
+            driver.spin_for(2.0)  # discovery
+            log(f"[demo] {name}: recording {seconds:.0f} s to {path}")
+            t0 = time.monotonic()
+            return rec, t0
+
+        # 1. initial gains, recorded for identification and synthesis
+        bag1 = workdir / "train_initial_gains"
+        rec, _ = record_phase("initial", train, CORE_TOPICS, bag1)
+        driver.spin_for(train)
+        launch.stop([rec])
+        out["phases"].append({"name": "initial gains", "bag": str(bag1), "gains": initial})
+        # 2. combined synthesis on that bag, applied live through the parameter services
+        log("[demo] synthesis node: combined synthesis on the recorded bag")
+        req = Synthesize.Request(bags=[str(bag1)], joints=JOINTS, mode="combined", apply=True)
+        res = driver.call(Synthesize, "/synthesis_node/synthesize", req)
+        out["synthesis"] = _result_dict(res)
+        if not res.success:
+            raise RuntimeError(f"synthesis failed: {res.message}")
+        log(f"[demo] synthesised and applied: {res.message}")
+        # 3. run with the new gains, re-identify the sets (paper Sec. III-D, iteration 2)
+        bag2 = workdir / "train_new_gains"
+        rec, _ = record_phase("new gains", train, CORE_TOPICS, bag2)
+        driver.spin_for(train)
+        launch.stop([rec])
+        log("[demo] synthesis node: re-identification with the new gains (controller fixed)")
+        req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="reidentify", apply=True)
+        res = driver.call(Synthesize, "/synthesis_node/synthesize", req)
+        out["reidentify"] = _result_dict(res)
+        if not res.success:
+            raise RuntimeError(f"re-identification failed: {res.message}")
+        # 4. monitored run, fault injected
+        rec, t0 = record_phase("monitored", duration, MONITOR_TOPICS, record)
+        out["monitored_start_wall"] = time.time()
+        if fault_at is not None and fault_at < duration:
+            driver.spin_for(fault_at, until=lambda: bool([s for s in driver.stops if s.active]))
+            early = [s for s in driver.stops if s.active]
+            if early:
+                out["early_stop"] = {"reason": early[0].reason, "stamp_ns": stamp_ns(early[0].header.stamp)}
+            kind, joint, mag = fault
+            ok, why = set_remote_parameters(driver, "sim_node", {"fault_joint": joint, "fault_magnitude": float(mag),
+                                                                  "fault": kind})
+            if not ok:
+                raise RuntimeError(f"fault injection refused: {why}")
+            driver.spin_for(2.0, until=lambda: bool(driver.onsets))
+            driver.spin_for(max(0.0, duration - (time.monotonic() - t0)))
+        else:
+            driver.spin_for(duration)
+        launch.stop([rec])
+        active = [s for s in driver.stops if s.active]
+        out["fault_injected_ns"] = stamp_ns(driver.onsets[0].header.stamp) if driver.onsets else None
+        out["fault"] = driver.onsets[0].frame_id if driver.onsets else None
+        out["safe_stop_ns"] = stamp_ns(active[0].header.stamp) if active else None
+        out["safe_stop"] = ({"reason": active[0].reason, "kind": active[0].kind, "joint": active[0].joint,
+                             "step": active[0].step, "window_bag": active[0].window_bag} if active else None)
+        out["record"] = str(record)
+        return out
+    finally:
+        launch.stop(procs)
+        driver.destroy_node()
+        if own:
+            rclpy.try_shutdown()
+
+
+def _result_dict(res):
+    r = res.result
+    return {"success": res.success, "message": res.message, "model_file": r.model_file, "applied": r.applied,
+            "joints": {j.name: {"re_norm": j.re_norm, "re_radius": list(j.re_radius), "ru": [j.ru_lower, j.ru_upper],
+                                "alpha_w": list(j.alpha_w), "alpha_v": list(j.alpha_v),
+                                "gains": dict(zip(j.param_names, j.param_values)), "observer": j.observer,
+                                "controller": j.controller, "conformant": j.conformant,
+                                "test_cases": j.test_cases}
+                       for j in r.joints}}

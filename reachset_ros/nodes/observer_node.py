@@ -1,0 +1,108 @@
+"""observer_node: HG or ESO per joint on /joint_states (+ /plant_input), publishes /observer/estimate.
+
+At a measurement stamped t the estimate (with the feedthrough of y[t]) is published
+stamped t; the observer state advances once the plant input stamped t arrives (the ESO
+needs it; the HG observer ignores it). Gains change only through the parameter service,
+atomically between ticks; invalid gains are refused with the reason.
+"""
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from reachset_msgs.msg import JointEstimate, PlantInput
+from sensor_msgs.msg import JointState
+
+from ..errors import ReachsetError
+from .common import TICK_QOS, desc, spin_node, stamp_ns
+from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
+
+
+class ObserverNode(Node):
+    def __init__(self):
+        super().__init__("observer_node")
+        self.declare_parameter("joints", ["arm_1_joint", "arm_2_joint", "arm_3_joint", "arm_4_joint",
+                                          "arm_5_joint", "arm_6_joint"], desc("joints, in this order"))
+        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        declare_gain_parameters(self)
+        self.joints = list(self.get_parameter("joints").value)
+        self.dt = float(self.get_parameter("dt").value)
+        self.counters = {"missing_input": 0, "bad_sample": 0, "stale": 0}
+        self.configure(current_values(self))
+        self.pub = self.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)
+        self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
+        self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+
+    def configure(self, values):
+        gains = gains_from(values, self.joints)
+        observers = {j: g.build_observer(self.dt) for j, g in gains.items()}
+        for j, o in observers.items():
+            rho = max(abs(np.linalg.eigvals(o.Ao))) if o.n_states else 0.0
+            if rho >= 1.0:
+                raise ReachsetError(f"observer of joint {j} is unstable (spectral radius {rho:.4g})")
+        self.observers = observers
+        self.states = {j: o.initial_state() for j, o in observers.items()}
+        self.initialised = False
+        self.pending = None  # (stamp, y per joint) awaiting its plant input
+
+    def on_set_parameters(self, params):
+        try:
+            self.configure(proposed_values(self, params))
+        except ReachsetError as e:
+            return SetParametersResult(successful=False, reason=str(e))
+        return SetParametersResult(successful=True)
+
+    def on_joint_states(self, msg):
+        stamp = stamp_ns(msg.header.stamp)
+        idx = {n: i for i, n in enumerate(msg.name)}
+        if any(j not in idx for j in self.joints) or len(msg.position) < len(msg.name):
+            self.counters["bad_sample"] += 1
+            return
+        y = {j: float(msg.position[idx[j]]) for j in self.joints}
+        if not all(np.isfinite(v) for v in y.values()):
+            self.counters["bad_sample"] += 1
+            return
+        if self.pending is not None:
+            # the plant input of the previous tick never came: advance with the last known one
+            self.counters["missing_input"] += 1
+            self.advance(self.pending[1], self.last_u if hasattr(self, "last_u") else {j: 0.0 for j in self.joints})
+        if not self.initialised:
+            self.states = {j: o.initial_state([y[j]] + [0.0] * (len(o.estimate_names) - 1), [y[j]], [0.0])
+                           for j, o in self.observers.items()}
+            self.initialised = True
+        out = JointEstimate()
+        out.header.stamp = msg.header.stamp
+        out.name = list(self.joints)
+        est = {j: self.states[j].partial_estimate([y[j]]) for j in self.joints}
+        names = {j: self.observers[j].estimate_names for j in self.joints}
+        out.position = [float(est[j][names[j].index("q")]) for j in self.joints]
+        out.velocity = [float(est[j][names[j].index("qd")]) for j in self.joints]
+        out.disturbance = [float(est[j][names[j].index("d")]) if "d" in names[j] else 0.0 for j in self.joints]
+        self.pub.publish(out)
+        self.pending = (stamp, y)
+
+    def on_plant_input(self, msg):
+        if self.pending is None:
+            return
+        stamp = stamp_ns(msg.header.stamp)
+        if stamp != self.pending[0]:
+            self.counters["stale"] += 1
+            return
+        idx = {n: i for i, n in enumerate(msg.name)}
+        if any(j not in idx for j in self.joints):
+            self.counters["bad_sample"] += 1
+            return
+        u = {j: float(msg.acceleration[idx[j]]) for j in self.joints}
+        self.last_u = u
+        self.advance(self.pending[1], u)
+
+    def advance(self, y, u):
+        self.states = {j: self.states[j].advance([y[j]], [u[j]]) for j in self.joints}
+        self.pending = None
+
+
+def main(args=None):
+    spin_node(ObserverNode, args)
+
+
+if __name__ == "__main__":
+    main()

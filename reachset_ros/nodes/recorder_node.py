@@ -1,0 +1,76 @@
+"""recorder_node: records topics to an MCAP rosbag2 directory with rosbags.
+
+rosbag2 is not on PyPI, so this stands in for ``ros2 bag record``: it subscribes to each
+topic as serialized CDR (rclpy ``raw=True``), and writes the bytes unchanged with the
+message definitions embedded, so any rosbags or mcap reader decodes the bag without this
+package. Receive time is the bag's log time. The bag appears at ``output`` only when the
+recorder shuts down cleanly (SIGINT/SIGTERM); until then it is ``<output>.partial``.
+"""
+import signal
+import sys
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, Header
+
+from ..bags import BagWriter
+from .common import SAFE_STOP_QOS, TICK_QOS, desc
+
+TOPICS = {
+    "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
+    "/plant_input": (PlantInput, "reachset_msgs/msg/PlantInput"),
+    "/reference": (JointReference, "reachset_msgs/msg/JointReference"),
+    "/observer/estimate": (JointEstimate, "reachset_msgs/msg/JointEstimate"),
+    "/effort_commands": (Float64MultiArray, "std_msgs/msg/Float64MultiArray"),
+    "/conformance/status": (ConformanceStatus, "reachset_msgs/msg/ConformanceStatus"),
+    "/safe_stop": (SafeStop, "reachset_msgs/msg/SafeStop"),
+    "/diagnostics": (DiagnosticArray, "diagnostic_msgs/msg/DiagnosticArray"),
+    "/sim/fault_onset": (Header, "std_msgs/msg/Header"),
+}
+
+
+class RecorderNode(Node):
+    def __init__(self):
+        super().__init__("recorder_node")
+        self.declare_parameter("output", "bags/recording", desc("rosbag2 directory to create"))
+        self.declare_parameter("topics", list(TOPICS), desc("topics to record"))
+        self.writer = BagWriter(self.get_parameter("output").value)
+        self.writer.__enter__()
+        self.counts = {}
+        for topic in self.get_parameter("topics").value:
+            if topic not in TOPICS:
+                self.get_logger().warning(f"unknown topic {topic}: not recorded")
+                continue
+            cls, typename = TOPICS[topic]
+            qos = SAFE_STOP_QOS if topic in ("/safe_stop", "/sim/fault_onset") else TICK_QOS
+            self.create_subscription(cls, topic, self._cb(topic, typename), qos, raw=True)
+
+    def _cb(self, topic, typename):
+        def cb(data):
+            self.writer.write_raw(topic, bytes(data), self.get_clock().now().nanoseconds, typename)
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+        return cb
+
+    def close(self):
+        self.writer.__exit__(None, None, None)
+
+
+def main(args=None):
+    rclpy.init(args=args if args is not None else sys.argv)
+    node = RecorderNode()
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

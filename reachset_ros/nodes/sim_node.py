@@ -1,0 +1,127 @@
+"""sim_node: the simulated LWA-4P (reachset_ros.simulator) as a ROS node.
+
+Publishes ``/joint_states`` at 250 Hz from its own clock (stamp = the simulator's tick
+time, anchored to the wall clock at start); applies the latest ``/effort_commands``
+(joint order of the ``joints`` parameter) with the paper's one-sample input delay. Faults
+are injected through the ``fault`` parameters; the stamp of the first measurement a fault
+can change is published, latched, on ``/sim/fault_onset`` (std_msgs/Header, frame_id = the
+fault's description).
+"""
+import time
+
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, Header
+
+from .. import simulator as sim
+from ..errors import ReachsetError
+from ..reference import ReferenceConfig
+from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
+
+FAULTS = ("none", "payload", "torque", "acceleration", "bias", "frozen", "nan")
+
+
+def make_fault(kind, joint, magnitude, start_s):
+    if kind == "payload":
+        return sim.Payload(start_s=start_s, mass=magnitude)
+    if kind == "torque":
+        return sim.TorqueDisturbance(start_s=start_s, joint=joint, torque=magnitude)
+    if kind == "acceleration":
+        return sim.AccelerationDisturbance(start_s=start_s, joint=joint, acceleration=magnitude)
+    if kind == "bias":
+        return sim.SensorBias(start_s=start_s, joint=joint, bias=magnitude)
+    if kind == "frozen":
+        return sim.FrozenSensor(start_s=start_s, joint=joint)
+    if kind == "nan":
+        return sim.NaNSamples(start_s=start_s, joint=joint, count=max(1, int(magnitude)))
+    raise ReachsetError(f"unknown fault {kind!r}; known: {', '.join(FAULTS)}")
+
+
+class SimNode(Node):
+    def __init__(self):
+        super().__init__("sim_node")
+        self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True))
+        self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise"))
+        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("fault", "none", desc("inject now: " + " | ".join(FAULTS)))
+        self.declare_parameter("fault_joint", "arm_1_joint", desc("joint of the fault"))
+        self.declare_parameter("fault_magnitude", 5.0,
+                               desc("kg (payload), N m (torque), rad/s^2 (acceleration), rad (bias), samples (nan)"))
+        seed = int(self.get_parameter("seed").value)
+        dt = float(self.get_parameter("dt").value)
+        start_ns = time.time_ns() // 1_000_000 * 1_000_000
+        cfg = (sim.SimConfig.realistic(seed=seed, dt=dt, start_ns=start_ns)
+               if self.get_parameter("realistic").value else sim.SimConfig.ideal(dt=dt, start_ns=start_ns))
+        self.arm = sim.SimulatedArm(cfg, seed=seed)
+        rc = ReferenceConfig()
+        q0 = 0.5 * (rc.q_min + rc.q_max)
+        self.m = self.arm.reset(q0)
+        self.tau = np.array(self.arm.state.tau_pending)
+        self.t_start = time.monotonic()
+        self.names = list(self.arm.joint_names)
+        self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0}
+        self.fresh = False
+        self.pub = self.create_publisher(JointState, "joint_states", TICK_QOS)
+        self.onset_pub = self.create_publisher(Header, "sim/fault_onset", SAFE_STOP_QOS)
+        self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.publish(self.m)
+        self.create_timer(dt, self.tick)
+
+    def on_effort(self, msg):
+        tau = np.asarray(msg.data, dtype=np.float64)
+        if tau.shape != (len(self.names),) or not np.all(np.isfinite(tau)):
+            self.counters["bad_effort"] += 1
+            return
+        self.tau = tau
+        self.fresh = True
+
+    def on_set_parameters(self, params):
+        for p in params:
+            if p.name == "fault" and p.value != "none":
+                joint = self.get_parameter("fault_joint").value
+                mag = float(self.get_parameter("fault_magnitude").value)
+                for q in params:
+                    if q.name == "fault_joint":
+                        joint = q.value
+                    if q.name == "fault_magnitude":
+                        mag = float(q.value)
+                try:
+                    start_s = (self.arm.state.k + 1) * self.arm.config.dt
+                    onset = self.arm.inject(make_fault(p.value, joint, mag, start_s))
+                except ReachsetError as e:
+                    return SetParametersResult(successful=False, reason=str(e))
+                h = Header(frame_id=f"{p.value} on {joint}, magnitude {mag:g}")
+                to_stamp(h.stamp, onset)
+                self.onset_pub.publish(h)
+                self.get_logger().warning(f"fault injected: {h.frame_id}, first affected stamp {onset} ns")
+            if p.name in ("seed", "realistic", "dt"):
+                return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
+        return SetParametersResult(successful=True)
+
+    def tick(self):
+        if not self.fresh:
+            self.counters["stale_effort"] += 1
+        self.fresh = False
+        self.m = self.arm.step(self.tau)
+        self.counters["ticks"] += 1
+        self.publish(self.m)
+
+    def publish(self, m):
+        js = JointState()
+        to_stamp(js.header.stamp, m.stamp_ns)
+        js.name = self.names
+        js.position = [float(x) for x in m.q_measured]
+        js.velocity = [float(x) for x in m.qd_measured]
+        js.effort = [float(x) for x in m.tau_applied]
+        self.pub.publish(js)
+
+
+def main(args=None):
+    spin_node(SimNode, args)
+
+
+if __name__ == "__main__":
+    main()

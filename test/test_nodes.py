@@ -1,0 +1,214 @@
+"""The node suite over real DDS: separate processes, parameter services, safe stop, watchdog."""
+import os
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.node import Node
+from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from reachset_ros import launch
+from reachset_ros import model as mdl
+from reachset_ros.estimators import Estimator
+from reachset_ros.nodes.common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, to_stamp
+from reachset_ros.plant import lwa4p_joint_plant
+
+JOINTS = ["arm_1_joint", "arm_2_joint"]
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    node = Node("test_driver")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def spin_until(node, cond, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.02)
+        if cond():
+            return True
+    return False
+
+
+def write_model(path, alpha_w=(0.05, 4.0), alpha_v=(1e-4,), horizon=25):
+    p = lwa4p_joint_plant()
+    js = {j: mdl.JointSets(tuple(alpha_w), tuple(alpha_v), (0.0,) * 5, (0.0,), 0, horizon) for j in JOINTS}
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), path)
+    return path
+
+
+def test_controller_gains_through_parameter_service(ros, tmp_path):
+    model = write_model(tmp_path / "m.yaml")
+    ctl = launch.start("controller_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
+                                           "omega": [10.0], "zeta": [1.0]}, tmp_path)
+    got = []
+    ros.create_subscription(PlantInput, "plant_input", lambda m: got.append(m), TICK_QOS)
+    est_pub = ros.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)
+    try:
+        def send(k):
+            e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            to_stamp(e.header.stamp, 10**18 + k * 4_000_000)
+            est_pub.publish(e)
+
+        k = [0]
+
+        def pump_until(cond, timeout=20):
+            end = time.monotonic() + timeout
+            while time.monotonic() < end:
+                k[0] += 1
+                send(k[0])
+                if spin_until(ros, cond, 0.05):
+                    return True
+            return False
+
+        # no reference: the controller regulates to the measured position (zero feedback)
+        assert pump_until(lambda: len(got) > 0)
+        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [12.0, 14.0]})
+        assert ok, why
+        target = [-(12.0 ** 2) * 0.0, 0.0]
+        # with a reference of 0 at the same stamp the law is -omega^2 q
+        ref_pub = ros.create_publisher(JointReference, "reference", TICK_QOS)
+        got.clear()
+
+        def send_with_ref(kk):
+            r = JointReference(name=JOINTS, position=[0.0, 0.0], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])
+            to_stamp(r.header.stamp, 10**18 + kk * 4_000_000)
+            ref_pub.publish(r)
+            time.sleep(0.01)
+            send(kk)
+
+        def reached():
+            return any(abs(m.acceleration[0] + 144.0 * 0.1) < 1e-9 and abs(m.acceleration[1] - 196.0 * 0.2) < 1e-9
+                       for m in got)
+        end = time.monotonic() + 20
+        while time.monotonic() < end and not reached():
+            k[0] += 1
+            send_with_ref(k[0])
+            spin_until(ros, reached, 0.05)
+        assert reached(), [list(m.acceleration) for m in got[-3:]]
+        del target
+        # an unsafe gain set is refused with its reason, and the running gains stay
+        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [60.0]})
+        assert not ok and ("unstable" in why or "R_u" in why), why
+        ok, why = set_remote_parameters(ros, "controller_node", {"zeta": [float("nan")]})
+        assert not ok
+        ok, why = set_remote_parameters(ros, "controller_node", {"model_file": str(tmp_path / "missing.yaml")})
+        assert not ok and "not found" in why
+        got.clear()
+        end = time.monotonic() + 10
+        while time.monotonic() < end and not reached():
+            k[0] += 1
+            send_with_ref(k[0])
+            spin_until(ros, reached, 0.05)
+        assert reached()
+    finally:
+        launch.stop([ctl])
+
+
+def plant_stream(n, seed=0, fault_from=None):
+    """Data that follow the per-joint plant (small bounded disturbances), two joints."""
+    p = lwa4p_joint_plant()
+    rng = np.random.default_rng(seed)
+    X = np.zeros((2, 5))
+    for k in range(n):
+        y = X[:, 0] + 2e-5 * rng.uniform(-1, 1, 2)
+        u = np.sin(0.01 * k + np.arange(2)) - 50 * X[:, 1] - 10 * X[:, 2]
+        yield k, y, u
+        a = 0.0 if fault_from is None or k < fault_from else 20.0
+        for j in range(2):
+            X[j] = p.A @ X[j] + p.B[:, 0] * u[j] + p.Gw @ (np.array([0.01, 1.0]) * rng.uniform(-1, 1, 2))
+            X[j, 2] += 0.004 * a
+            X[j, 1] += 0.5 * 0.004 ** 2 * a
+
+
+def identified_model(path, horizon=25):
+    """A model identified (Theorem 1) on a clean stream, sets doubled for margin."""
+    from reachset_ros import conformance as cf
+    p = lwa4p_joint_plant()
+    data = list(plant_stream(3000, seed=11))
+    Y = np.array([d[1] for d in data])
+    U = np.array([d[2] for d in data])
+    thm = cf.Theorem1.build(p, horizon)
+    devs = [cf.deviation_extremes(p, Estimator("fd"), Y[:, j], U[:, j], ((0, 3000),), horizon, thm) for j in range(2)]
+    sets = cf.identify(p, thm, cf.combine(devs))
+    return write_model(path, tuple(2 * sets.alpha_w), tuple(2 * sets.alpha_v), horizon)
+
+
+def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
+    model = identified_model(tmp_path / "m.yaml")
+    mon = launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 25,
+                                        "window_dir": str(tmp_path / "windows")}, tmp_path)
+    status, stops = [], []
+    # a listener spun by its own executor thread, so that no status message is missed
+    import threading
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile
+    listener = Node("test_listener")
+    listener.create_subscription(ConformanceStatus, "conformance/status", lambda m: status.append(m),
+                                 QoSProfile(depth=2000))
+    listener.create_subscription(SafeStop, "safe_stop", lambda m: stops.append(m), SAFE_STOP_QOS)
+    ex = SingleThreadedExecutor()
+    ex.add_node(listener)
+    th = threading.Thread(target=ex.spin, daemon=True)
+    th.start()
+    js_pub = ros.create_publisher(JointState, "joint_states", TICK_QOS)
+    pi_pub = ros.create_publisher(PlantInput, "plant_input", TICK_QOS)
+    t0 = 10**18
+
+    def publish(k, y, u):
+        js = JointState(name=JOINTS, position=[float(v) for v in y])
+        to_stamp(js.header.stamp, t0 + k * 4_000_000)
+        pi = PlantInput(name=list(reversed(JOINTS)), acceleration=[float(u[1]), float(u[0])])
+        pi.header.stamp = js.header.stamp
+        js_pub.publish(js)
+        pi_pub.publish(pi)
+        rclpy.spin_once(ros, timeout_sec=0.0)
+
+    try:
+        time.sleep(2.0)
+        fault_from = 400
+        for k, y, u in plant_stream(900, fault_from=fault_from):
+            publish(k, y, u)
+            time.sleep(0.004)
+        assert spin_until(ros, lambda: any(s.active for s in stops), 5.0)
+        stop = [s for s in stops if s.active][0]
+        assert stop.kind == "violation" and stop.joint in JOINTS and stop.deviation > stop.bound
+        stop_ns = stop.header.stamp.sec * 10**9 + stop.header.stamp.nanosec
+        assert stop_ns >= t0 + fault_from * 4_000_000, "no safe stop before the fault"
+        # status every tick (all ticks processed, the first ones before the fault conformant)
+        spin_until(ros, lambda: len(status) >= 900 - 3, 5.0)
+        ticks = [s.tick for s in status]
+        assert len(status) >= 900 - 3 and ticks == list(range(ticks[0], ticks[0] + len(ticks)))
+        assert all(s.conformant for s in status[:fault_from])
+        # the window bag was written
+        assert spin_until(ros, lambda: os.path.isdir(stop.window_bag), 10.0), stop.window_bag
+        # latched: a late subscriber sees it
+        late = []
+        sub = ros.create_subscription(SafeStop, "safe_stop", lambda m: late.append(m), SAFE_STOP_QOS)
+        assert spin_until(ros, lambda: bool(late), 5.0) and late[-1].active
+        ros.destroy_subscription(sub)
+        # only the reset service clears it
+        cli = ros.create_client(Trigger, "/monitor_node/reset")
+        assert cli.wait_for_service(timeout_sec=10)
+        fut = cli.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(ros, fut, timeout_sec=10)
+        assert fut.result().success
+        assert spin_until(ros, lambda: not stops[-1].active, 5.0)
+        # stale data trips the watchdog: a few good ticks, then silence
+        stops.clear()
+        for k, y, u in plant_stream(50, seed=3):
+            publish(2000 + k, y, u)
+            time.sleep(0.004)
+        assert spin_until(ros, lambda: any(s.active for s in stops), 5.0)
+        assert [s for s in stops if s.active][0].kind == "missing_data"
+    finally:
+        launch.stop([mon])
+        ex.shutdown()
+        listener.destroy_node()
