@@ -1,0 +1,262 @@
+"""Random point-to-point reference trajectories (pure core, no ROS).
+
+Like the paper's test trajectories (Sec. IV: "closed-loop trapezoidal and polynomial
+trajectories with random target positions, velocities, and accelerations up to
+qdd_d in U_ref = [-2, 2] rad/s^2"): a sequence of segments, each from the previous target
+to a random target drawn uniformly in the position box, all joints synchronised to start
+and stop together, followed by a random dwell. Each segment is, at random,
+
+* **trapezoidal**: constant acceleration, cruise, constant deceleration per joint;
+* **quintic**: ``q = q_0 + (q_1 - q_0) s(t/T)``, ``s = 10 r^3 - 15 r^4 + 6 r^5`` (rest to rest,
+  zero boundary acceleration);
+
+with a random velocity limit in ``[min_fraction, 1] * qd_max`` and acceleration limit in
+``[min_fraction, 1] * qdd_max``. Limits hold exactly: ``q_min <= q_d <= q_max``,
+``|qd_d| <= qd_max``, ``|qdd_d| <= qdd_max`` (trapezoids have acceleration steps, which
+the paper's double-integrator plant accepts). Reproducible: the segments depend only on
+the seed, the configuration and ``q0``, not on how the trajectory is sampled.
+"""
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import robot as rb
+from .errors import ReachsetError
+
+QUINTIC_VEL = 1.875                 # max s'(r)
+QUINTIC_ACC = 10.0 / np.sqrt(3.0)   # max |s''(r)|
+
+
+def _arr(x, n, name):
+    a = np.array(x, dtype=np.float64).reshape(-1)
+    if a.size == 1:
+        a = np.full(n, float(a[0]))
+    if a.size != n:
+        raise ReachsetError(f"reference: {name} needs {n} values, got {a.size}")
+    a.setflags(write=False)
+    return a
+
+
+_BOX = []
+
+
+def _default_box():
+    """Table I box intersected with the shipped URDF's position limits."""
+    if not _BOX:
+        m = rb.load_model()
+        _BOX.append((np.maximum(-rb.TABLE1_Q_MAX, m.lower), np.minimum(rb.TABLE1_Q_MAX, m.upper)))
+    return tuple(a.copy() for a in _BOX[0])
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """Limits and randomisation of :class:`ReferenceGenerator`.
+
+    Defaults: the paper's Table I box ``|q| <= q_max`` (140/45/100/140/80/140 deg)
+    intersected with the shipped URDF's position limits (which are tighter on joints 4 and
+    6: +-2.07 rad), ``qd_max = 0.7`` rad/s and ``U_ref``: ``qdd_max = 2`` rad/s^2.
+
+    Parameters
+    ----------
+    q_min, q_max : array_like (n,)
+        Position box [rad].
+    qd_max, qdd_max : float or array_like (n,)
+        Velocity [rad/s] and acceleration [rad/s^2] limits.
+    kinds : tuple of str
+        Segment kinds drawn from (``"trapezoidal"``, ``"quintic"``).
+    dwell : (float, float)
+        Range of the random pause after each segment [s].
+    min_fraction : float
+        Per-segment limits are drawn uniformly in ``[min_fraction, 1]`` times the limits.
+    min_distance : float
+        Targets closer than this to the start (max over joints) are redrawn [rad].
+    """
+
+    q_min: np.ndarray = field(default_factory=lambda: _default_box()[0])
+    q_max: np.ndarray = field(default_factory=lambda: _default_box()[1])
+    qd_max: object = 0.7
+    qdd_max: object = rb.U_REF
+    kinds: tuple = ("trapezoidal", "quintic")
+    dwell: tuple = (0.0, 0.5)
+    min_fraction: float = 0.2
+    min_distance: float = 0.05
+
+    def __post_init__(self):
+        n = np.size(self.q_min)
+        object.__setattr__(self, "q_min", _arr(self.q_min, n, "q_min"))
+        object.__setattr__(self, "q_max", _arr(self.q_max, n, "q_max"))
+        object.__setattr__(self, "qd_max", _arr(self.qd_max, n, "qd_max"))
+        object.__setattr__(self, "qdd_max", _arr(self.qdd_max, n, "qdd_max"))
+        if np.any(self.q_max <= self.q_min):
+            raise ReachsetError("reference: q_max must exceed q_min on every joint")
+        if np.any(self.qd_max <= 0) or np.any(self.qdd_max <= 0):
+            raise ReachsetError("reference: qd_max and qdd_max must be > 0")
+        if not self.kinds or set(self.kinds) - {"trapezoidal", "quintic"}:
+            raise ReachsetError(f"reference: kinds must be trapezoidal and/or quintic, "
+                                f"got {self.kinds}")
+        if not (0 < self.min_fraction <= 1) or not (0 <= self.dwell[0] <= self.dwell[1]):
+            raise ReachsetError("reference: need 0 < min_fraction <= 1 and 0 <= dwell[0] <= dwell[1]")
+
+    @property
+    def n(self) -> int:
+        return self.q_min.size
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One synchronised move from ``q0`` to ``q1`` starting at ``t0``, lasting ``T``,
+    then resting until ``t0 + T + dwell``. ``a``, ``v``: per-joint signed acceleration and
+    cruise velocity of a trapezoid (unused for quintic)."""
+
+    t0: float
+    T: float
+    dwell: float
+    q0: np.ndarray
+    q1: np.ndarray
+    kind: str
+    a: np.ndarray
+    v: np.ndarray
+
+    @property
+    def t_end(self) -> float:
+        return self.t0 + self.T + self.dwell
+
+    def evaluate(self, t: float):
+        """``(q, qd, qdd)`` at absolute time ``t`` in ``[t0, t_end]``."""
+        tau = min(max(t - self.t0, 0.0), self.T)
+        d = self.q1 - self.q0
+        if t - self.t0 >= self.T or self.T == 0.0:
+            z = np.zeros_like(d)
+            return self.q1.copy(), z, z.copy()
+        if self.kind == "quintic":
+            r = tau / self.T
+            s = r ** 3 * (10 - 15 * r + 6 * r * r)
+            ds = 30 * r * r * (1 - r) ** 2 / self.T
+            dds = 60 * r * (1 - r) * (1 - 2 * r) / self.T ** 2
+            return self.q0 + d * s, d * ds, d * dds
+        # trapezoid (v = 0 joints do not move); t_a = |v / a|
+        q, qd, qdd = self.q0.copy(), np.zeros_like(d), np.zeros_like(d)
+        mv = self.v != 0
+        a, v = self.a[mv], self.v[mv]
+        ta = v / a
+        T = self.T
+        acc = tau < ta
+        dec = tau > T - ta
+        cru = ~(acc | dec)
+        qm = np.empty_like(v)
+        vm = np.empty_like(v)
+        am = np.empty_like(v)
+        qm[acc] = 0.5 * a[acc] * tau ** 2
+        vm[acc] = a[acc] * tau
+        am[acc] = a[acc]
+        qm[cru] = 0.5 * v[cru] * ta[cru] + v[cru] * (tau - ta[cru])
+        vm[cru] = v[cru]
+        am[cru] = 0.0
+        rem = T - tau
+        qm[dec] = d[mv][dec] - 0.5 * a[dec] * rem ** 2
+        vm[dec] = a[dec] * rem
+        am[dec] = -a[dec]
+        q[mv] += qm
+        qd[mv] = vm
+        qdd[mv] = am
+        return q, qd, qdd
+
+
+class ReferenceGenerator:
+    """Random point-to-point reference ``(q_d, qd_d, qdd_d)`` (see the module docstring).
+
+    Parameters
+    ----------
+    config : ReferenceConfig
+    q0 : array_like (n,), optional
+        Start position (inside the box); default the box centre.
+    seed : int
+
+    Examples
+    --------
+    >>> gen = ReferenceGenerator(ReferenceConfig(), seed=3)
+    >>> q_d, qd_d, qdd_d = gen.sample(1.234)
+    >>> t, Q, QD, QDD = gen.trajectory(10.0)         # 250 Hz batch
+    """
+
+    def __init__(self, config: ReferenceConfig | None = None, q0=None, seed: int = 0):
+        self.config = config or ReferenceConfig()
+        c = self.config
+        q0 = 0.5 * (c.q_min + c.q_max) if q0 is None else _arr(q0, c.n, "q0")
+        if np.any(q0 < c.q_min - 1e-12) or np.any(q0 > c.q_max + 1e-12):
+            raise ReachsetError(f"reference: q0 {np.round(q0, 4).tolist()} outside the position box")
+        self.q0 = np.array(q0, dtype=np.float64)
+        self.seed = int(seed)
+        self._rng = np.random.default_rng(self.seed)
+        self._segments: list = []
+        self._starts: list = []
+
+    @property
+    def segments(self) -> tuple:
+        """Segments generated so far."""
+        return tuple(self._segments)
+
+    def _new_segment(self) -> Segment:
+        c, rng = self.config, self._rng
+        if self._segments:
+            last = self._segments[-1]
+            t0, qs = last.t_end, last.q1
+        else:
+            t0, qs = 0.0, self.q0
+        for _ in range(100):
+            q1 = rng.uniform(c.q_min, c.q_max)
+            if np.max(np.abs(q1 - qs)) >= c.min_distance:
+                break
+        kind = c.kinds[int(rng.integers(len(c.kinds)))]
+        vmax = c.qd_max * rng.uniform(c.min_fraction, 1.0)
+        amax = c.qdd_max * rng.uniform(c.min_fraction, 1.0)
+        dwell = float(rng.uniform(*c.dwell))
+        d = q1 - qs
+        D = np.abs(d)
+        if kind == "quintic":
+            T = float(np.max(np.maximum(QUINTIC_VEL * D / vmax, np.sqrt(QUINTIC_ACC * D / amax))))
+            a = v = np.zeros(c.n)
+        else:
+            tri = D < vmax ** 2 / amax
+            Tj = np.where(tri, 2 * np.sqrt(D / amax), D / vmax + vmax / amax)
+            T = float(np.max(Tj))
+            # each joint keeps its acceleration limit and cruises slower to finish at T
+            disc = np.maximum(amax ** 2 * T ** 2 - 4 * amax * D, 0.0)
+            vabs = (amax * T - np.sqrt(disc)) / 2
+            vabs = np.minimum(vabs, vmax)
+            v = np.sign(d) * vabs
+            # exact arrival: acceleration from v and T (a = v^2 / (v T - D)), <= amax
+            with np.errstate(divide="ignore", invalid="ignore"):
+                aabs = np.where(vabs > 0, vabs ** 2 / np.maximum(vabs * T - D, 1e-300), 0.0)
+            aabs = np.minimum(aabs, amax)
+            a = np.sign(d) * aabs
+            v = np.where(D > 0, v, 0.0)
+        seg = Segment(t0, T, dwell, np.array(qs), q1, kind, a, v)
+        return seg
+
+    def _segment_at(self, t: float) -> Segment:
+        if t < 0:
+            raise ReachsetError(f"reference: time {t} before the start")
+        while not self._segments or self._segments[-1].t_end <= t:
+            seg = self._new_segment()
+            self._segments.append(seg)
+            self._starts.append(seg.t0)
+        i = bisect.bisect_right(self._starts, t) - 1
+        return self._segments[i]
+
+    def sample(self, t: float):
+        """``(q_d, qd_d, qdd_d)`` at time ``t`` [s] since the start (any order of calls)."""
+        return self._segment_at(float(t)).evaluate(float(t))
+
+    def batch(self, ts):
+        """:meth:`sample` at each time of ``ts``; arrays (len(ts), n)."""
+        out = [self.sample(t) for t in np.asarray(ts, dtype=np.float64)]
+        return tuple(np.array([o[i] for o in out]) for i in range(3))
+
+    def trajectory(self, duration: float, dt: float = 0.004):
+        """Sampled at ``k dt`` for ``k dt < duration``: ``(t, Q, QD, QDD)``."""
+        t = np.arange(int(np.ceil(duration / dt - 1e-9))) * dt
+        return (t,) + self.batch(t)

@@ -1,0 +1,464 @@
+"""A simulated torque-controlled arm with the paper's timing (pure core, no ROS).
+
+Physics: Pinocchio forward dynamics (articulated-body algorithm) of a "true" robot,
+``qdd = M_true(q)^-1 (tau - psi_true(q, qd)) + a_fault``, integrated with classical
+Runge-Kutta 4 at ``dt / substeps`` (default 1 kHz; raised automatically if the friction's
+stiffness needs it, see :meth:`SimulatedArm.reset`). The torque is held constant over each
+4 ms interval (zero-order hold), as a real drive does.
+
+Timing (paper Appendix A, ``x_p[k] = [q[k-1], q[k], qd[k], d[k], u_p[k-1]]``,
+``y_p[k] = q[k-1]``). Tick k has stamp ``t_k = start_ns + k dt``:
+
+* the measurement stamped ``t_k`` reports the position (and velocity) of ``t_{k-1}``:
+  one sample of **output delay**, ``y[k] = q[k-1]``;
+* the torque computed from the measurement of tick k (passed to the ``step`` call that
+  follows it) acts during ``[t_{k+1}, t_{k+2})``: one sample of **input delay**, the
+  ``u_p[k-1]`` entry of the state; during ``[t_k, t_{k+1})`` the previous command acts.
+
+So with ``m_k = step(tau_{k-1})``: ``reset`` returns ``m_0`` (``q(t_{-1}) = q0``, the arm
+having rested there) with physics at ``t_0``; ``step(tau_k)`` integrates ``[t_k, t_{k+1})``
+under the pending ``tau_{k-1}``, stores ``tau_k`` as pending and returns ``m_{k+1}``
+(stamp ``t_{k+1}``, reporting ``q(t_k)``). After the call the physics is at ``t_{k+1}``.
+``Measurement.tau_applied`` is the motor torque that acted during ``[t_{k-1}, t_k)`` for
+``m_k``, i.e. the torque acting from the reported state on.
+
+Effects the nominal model lacks, each configurable (:class:`SimConfig`) and seeded: true
+inertial parameters different from the controller's (:class:`~reachset_ros.robot.ModelError`),
+viscous and Coulomb friction, encoder quantization, bounded measurement noise. Faults
+(:meth:`SimulatedArm.inject`) from a given time: :class:`Payload`,
+:class:`TorqueDisturbance`, :class:`AccelerationDisturbance`, :class:`SensorBias`,
+:class:`FrozenSensor`, :class:`NaNSamples`.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from . import robot as rb
+from .errors import ReachsetError
+
+DT = 0.004
+RK4_STABILITY = 2.5  # |h * lambda| kept below this (RK4's real-axis limit is 2.785)
+
+
+# --------------------------------------------------------------------------- config
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Configuration of :class:`SimulatedArm` (immutable).
+
+    Parameters
+    ----------
+    robot : RobotModel
+        The controller's nominal model; the true robot is ``perturb(robot, model_error)``.
+    model_error : ModelError or None
+        How the truth differs from ``robot`` (None: identical).
+    friction : Friction or None
+        If given, the true robot's friction (replacing the one of ``robot``).
+    dt : float
+        I/O period [s] (0.004: 250 Hz).
+    substeps : int
+        RK4 steps per period (4: 1 kHz physics); more if stability requires.
+    quantization : float
+        Encoder resolution [rad] (0: off).
+    position_noise, velocity_noise : float
+        Standard deviation of Gaussian measurement noise, clipped at +-3 sigma so that it is
+        bounded [rad], [rad/s] (0: off).
+    start_ns : int
+        Stamp of tick 0.
+    """
+
+    robot: rb.RobotModel = field(default_factory=rb.load_model)
+    model_error: rb.ModelError | None = None
+    friction: rb.Friction | None = None
+    dt: float = DT
+    substeps: int = 4
+    quantization: float = 3.5e-5
+    position_noise: float = 0.0
+    velocity_noise: float = 0.0
+    start_ns: int = 1_000_000_000_000_000_000
+
+    def __post_init__(self):
+        if not self.dt > 0 or self.substeps < 1:
+            raise ReachsetError("simulator: dt must be > 0 and substeps >= 1")
+        for f in ("quantization", "position_noise", "velocity_noise"):
+            if getattr(self, f) < 0:
+                raise ReachsetError(f"simulator: {f} must be >= 0")
+
+    @classmethod
+    def ideal(cls, robot: rb.RobotModel | None = None, **kw) -> "SimConfig":
+        """Truth = model, no quantization, no noise (unless given in ``kw``)."""
+        for f in ("quantization", "position_noise", "velocity_noise"):
+            kw.setdefault(f, 0.0)
+        return cls(robot=robot or rb.load_model(), **kw)
+
+    @classmethod
+    def realistic(cls, robot: rb.RobotModel | None = None, seed: int = 0, **kw) -> "SimConfig":
+        """Typical mismatch (:meth:`ModelError.typical`), 3.5e-5 rad encoder, noise
+        1e-5 rad / 2e-3 rad/s."""
+        kw.setdefault("model_error", rb.ModelError.typical(seed))
+        kw.setdefault("position_noise", 1e-5)
+        kw.setdefault("velocity_noise", 2e-3)
+        return cls(robot=robot or rb.load_model(), **kw)
+
+    def true_robot(self) -> rb.RobotModel:
+        """The simulated ("true") robot."""
+        truth = rb.perturb(self.robot, self.model_error)
+        if self.friction is not None:
+            truth = truth.replace(friction=self.friction)
+        return truth
+
+
+# --------------------------------------------------------------------------- faults
+
+@dataclass(frozen=True)
+class Fault:
+    """Base of all faults: active from ``start_s`` seconds after :meth:`SimulatedArm.reset`."""
+
+    start_s: float = 0.0
+
+    #: Physical faults change the arm's motion; sensor faults only its measurements.
+    physical = False
+
+
+@dataclass(frozen=True)
+class Payload(Fault):
+    """A point mass [kg] rigidly attached to the last link at ``com`` (link frame)."""
+
+    mass: float = 1.0
+    com: tuple = (0.0, 0.0, 0.05)
+    physical = True
+
+
+@dataclass(frozen=True)
+class TorqueDisturbance(Fault):
+    """A constant torque [N m] added on ``joint`` (index or name)."""
+
+    joint: object = 0
+    torque: float = 1.0
+    physical = True
+
+
+@dataclass(frozen=True)
+class AccelerationDisturbance(Fault):
+    """A constant acceleration [rad/s^2] added to ``joint`` (the ``d`` of Appendix A)."""
+
+    joint: object = 0
+    acceleration: float = 1.0
+    physical = True
+
+
+@dataclass(frozen=True)
+class SensorBias(Fault):
+    """A constant offset [rad] on the measured position of ``joint``."""
+
+    joint: object = 0
+    bias: float = 1e-3
+
+
+@dataclass(frozen=True)
+class FrozenSensor(Fault):
+    """The measured position and velocity of ``joint`` stop updating (last value held)."""
+
+    joint: object = 0
+
+
+@dataclass(frozen=True)
+class NaNSamples(Fault):
+    """``count`` measurements of ``joint`` (None: all joints) are NaN."""
+
+    joint: object = None
+    count: int = 1
+
+
+# --------------------------------------------------------------------------- state
+
+@dataclass(frozen=True)
+class Measurement:
+    """One 250 Hz sample (see the module docstring for the timing).
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Stamp of tick k.
+    q_measured, qd_measured : np.ndarray
+        Measured position [rad] / velocity [rad/s] of ``t_{k-1}``.
+    tau_applied : np.ndarray
+        Motor torque [N m] acting during ``[t_{k-1}, t_k)`` (without fault torques).
+    """
+
+    stamp_ns: int
+    q_measured: np.ndarray
+    qd_measured: np.ndarray
+    tau_applied: np.ndarray
+
+    @property
+    def valid(self) -> bool:
+        return bool(np.all(np.isfinite(self.q_measured)))
+
+
+@dataclass
+class SimState:
+    """Mutable state of :class:`SimulatedArm` (true physics, pending command, faults)."""
+
+    k: int
+    q: np.ndarray              # true position at t_k
+    qd: np.ndarray             # true velocity at t_k
+    q_prev: np.ndarray         # true position at t_{k-1} (reported by measurement k)
+    qd_prev: np.ndarray
+    tau_prev: np.ndarray       # torque applied during [t_{k-1}, t_k)
+    tau_pending: np.ndarray    # torque applied during [t_k, t_{k+1})
+    substeps: int
+    faults: list
+    truth: rb.RobotModel
+    data: pin.Data
+    payload_models: dict       # fault id -> truth with that payload (and the earlier ones)
+    frozen: dict               # joint -> (q, qd) held
+    nan_left: dict             # fault id -> samples left
+    rng: np.random.Generator
+    last_q: np.ndarray = None
+    last_qd: np.ndarray = None
+
+
+class SimulatedArm:
+    """A simulated arm with the paper's one-sample input and output delays.
+
+    Syntax::
+
+        arm = SimulatedArm(SimConfig.realistic(), seed=1)
+        m = arm.reset(q0)
+        for k in range(n):
+            tau = controller(m)          # torque from measurement k
+            m = arm.step(tau)            # applied during [t_{k+1}, t_{k+2})
+
+    Parameters
+    ----------
+    config : SimConfig
+    seed : int
+        Seed of the measurement noise (the same seed and inputs give identical outputs).
+    """
+
+    def __init__(self, config: SimConfig | None = None, seed: int = 0):
+        self.config = config or SimConfig()
+        self.seed = int(seed)
+        self._truth0 = self.config.true_robot()
+        self.state: SimState | None = None
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def joint_names(self) -> tuple:
+        return self.config.robot.joint_names
+
+    @property
+    def nv(self) -> int:
+        return self.config.robot.nv
+
+    @property
+    def true_robot(self) -> rb.RobotModel:
+        """The true robot in effect now (payload faults included)."""
+        return self.state.truth if self.state else self._truth0
+
+    def stamp(self, k: int) -> int:
+        """Stamp [ns] of tick ``k``."""
+        return int(self.config.start_ns + round(k * self.config.dt * 1e9))
+
+    def onset_stamp(self, fault: Fault) -> int:
+        """Stamp of the first measurement a fault can change.
+
+        Sensor faults: the first tick with ``t_k >= start_s``. Physical faults act on the
+        physics from the first integration substep starting at or after ``start_s``; the
+        first true state they change is the next tick's, ``t_j``, and with the output delay
+        the measurement stamped ``t_{j+1}`` is the first to show it.
+        """
+        dt = self.config.dt
+        if not fault.physical:
+            return self.stamp(math.ceil(fault.start_s / dt - 1e-9))
+        sub = self.state.substeps if self.state else self.config.substeps
+        h = dt / sub
+        t_eff = math.ceil(fault.start_s / h - 1e-9) * h
+        j = math.floor(t_eff / dt + 1e-9) + 1
+        return self.stamp(j + 1)
+
+    def _joint(self, j) -> int:
+        if isinstance(j, str):
+            if j not in self.joint_names:
+                raise ReachsetError(f"simulator: unknown joint {j!r}")
+            return self.joint_names.index(j)
+        j = int(j)
+        if not 0 <= j < self.nv:
+            raise ReachsetError(f"simulator: joint index {j} out of range")
+        return j
+
+    def _stable_substeps(self, truth, data, q) -> int:
+        """Substeps so that RK4 stays stable under the friction's velocity stiffness:
+        ``h * max eig(M^-1 D) <= RK4_STABILITY``, ``D = diag(viscous + coulomb / v_c)``."""
+        fr = truth.friction
+        Dm = np.abs(fr.viscous) + np.abs(fr.coulomb) / fr.coulomb_velocity
+        M = rb.mass_matrix(truth, data, q)
+        lam = float(np.max(np.abs(np.linalg.eigvals(np.linalg.solve(M, np.diag(Dm))))))
+        need = math.ceil(self.config.dt * lam / RK4_STABILITY)
+        return max(self.config.substeps, need)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, q0=None, qd0=None, tau0=None) -> Measurement:
+        """Start at rest (or at ``qd0``) at ``q0``; returns measurement 0.
+
+        ``tau0`` is the torque acting during ``[t_0, t_1)`` (before the first command takes
+        effect); default the true robot's holding torque ``psi_true(q0, qd0)``. Faults
+        injected earlier are cleared.
+        """
+        n = self.nv
+        q0 = np.zeros(n) if q0 is None else np.array(q0, dtype=np.float64).reshape(n)
+        qd0 = np.zeros(n) if qd0 is None else np.array(qd0, dtype=np.float64).reshape(n)
+        truth = self._truth0
+        data = rb.create_data(truth)
+        if tau0 is None:
+            tau0 = rb.psi(truth, data, q0, qd0)
+        tau0 = np.array(tau0, dtype=np.float64).reshape(n)
+        self.state = SimState(
+            k=0, q=q0.copy(), qd=qd0.copy(), q_prev=q0.copy(), qd_prev=qd0.copy(),
+            tau_prev=tau0.copy(), tau_pending=tau0.copy(),
+            substeps=self._stable_substeps(truth, data, q0), faults=[], truth=truth,
+            data=data, payload_models={}, frozen={}, nan_left={},
+            rng=np.random.default_rng(self.seed))
+        return self._measure()
+
+    def inject(self, fault: Fault) -> int:
+        """Add a fault (active from ``fault.start_s`` after reset); returns
+        :meth:`onset_stamp`. Faults persist until the next :meth:`reset`."""
+        if self.state is None:
+            raise ReachsetError("simulator: inject() before reset()")
+        if not isinstance(fault, Fault):
+            raise ReachsetError(f"simulator: not a fault: {fault!r}")
+        if getattr(fault, "joint", None) is not None:
+            self._joint(fault.joint)
+        if isinstance(fault, NaNSamples) and fault.count < 1:
+            raise ReachsetError("simulator: NaNSamples.count must be >= 1")
+        st = self.state
+        st.faults.append(fault)
+        if isinstance(fault, Payload):
+            prev = [f for f in st.faults[:-1] if isinstance(f, Payload)]
+            base = st.payload_models[id(prev[-1])] if prev else self._truth0
+            st.payload_models[id(fault)] = rb.add_payload(base, fault.mass, fault.com)
+        if isinstance(fault, NaNSamples):
+            st.nan_left[id(fault)] = int(fault.count)
+        return self.onset_stamp(fault)
+
+    def step(self, tau) -> Measurement:
+        """Command ``tau`` [N m] (computed from the latest measurement); advance one tick.
+
+        Integrates ``[t_k, t_{k+1})`` under the pending command, makes ``tau`` pending for
+        ``[t_{k+1}, t_{k+2})`` and returns measurement k+1 (reporting ``q(t_k)``).
+        """
+        st = self.state
+        if st is None:
+            raise ReachsetError("simulator: step() before reset()")
+        tau = np.array(tau, dtype=np.float64).reshape(self.nv)
+        q_k, qd_k = st.q.copy(), st.qd.copy()
+        self._integrate(st, st.tau_pending)
+        st.q_prev, st.qd_prev = q_k, qd_k
+        st.tau_prev = st.tau_pending
+        st.tau_pending = tau
+        st.k += 1
+        return self._measure()
+
+    def preview_state(self):
+        """True ``(q, qd)`` at ``t_{k+1}``, where the command given to the next
+        :meth:`step` starts acting (it is already determined); no side effects."""
+        st = copy.copy(self.state)
+        st.q, st.qd = st.q.copy(), st.qd.copy()
+        self._integrate(st, st.tau_pending)
+        return st.q, st.qd
+
+    @property
+    def true_state(self):
+        """``(stamp_ns, q, qd)``: the true state at the latest tick's stamp."""
+        st = self.state
+        return self.stamp(st.k), st.q.copy(), st.qd.copy()
+
+    # ------------------------------------------------------------------ internals
+    def _active(self, st, f, t) -> bool:
+        return t >= f.start_s - 1e-12
+
+    def _integrate(self, st: SimState, tau: np.ndarray) -> None:
+        h = self.config.dt / st.substeps
+        t0 = st.k * self.config.dt
+        for i in range(st.substeps):
+            t = t0 + i * h
+            truth, tau_ext, acc = self._physical_faults(st, t, tau)
+            data = st.data
+            fr = truth.friction
+            pm = truth.pin_model
+
+            def f(q, qd):
+                return pin.aba(pm, data, q, qd, tau_ext - fr.torque(qd)) + acc
+
+            q, qd = st.q, st.qd
+            k1v, k1a = qd, f(q, qd)
+            k2v = qd + 0.5 * h * k1a
+            k2a = f(q + 0.5 * h * k1v, k2v)
+            k3v = qd + 0.5 * h * k2a
+            k3a = f(q + 0.5 * h * k2v, k3v)
+            k4v = qd + h * k3a
+            k4a = f(q + h * k3v, k4v)
+            st.q = q + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+            st.qd = qd + h / 6.0 * (k1a + 2 * k2a + 2 * k3a + k4a)
+
+    def _physical_faults(self, st, t, tau):
+        truth = self._truth0
+        tau = tau.copy()
+        acc = np.zeros(self.nv)
+        for fl in st.faults:
+            if not fl.physical or not self._active(st, fl, t):
+                continue
+            if isinstance(fl, Payload):
+                truth = st.payload_models[id(fl)]
+            elif isinstance(fl, TorqueDisturbance):
+                tau[self._joint(fl.joint)] += fl.torque
+            elif isinstance(fl, AccelerationDisturbance):
+                acc[self._joint(fl.joint)] += fl.acceleration
+        st.truth = truth
+        return truth, tau, acc
+
+    def _noise(self, st, std):
+        z = st.rng.standard_normal(self.nv)          # drawn every tick: same stream always
+        return std * np.clip(z, -3.0, 3.0)
+
+    def _measure(self) -> Measurement:
+        st, cfg = self.state, self.config
+        q = st.q_prev.copy()
+        qd = st.qd_prev.copy()
+        nq = self._noise(st, cfg.position_noise)
+        nqd = self._noise(st, cfg.velocity_noise)
+        t = st.k * cfg.dt
+        for fl in st.faults:
+            if isinstance(fl, SensorBias) and self._active(st, fl, t):
+                q[self._joint(fl.joint)] += fl.bias
+        if cfg.quantization > 0:
+            q = np.round(q / cfg.quantization) * cfg.quantization
+        q = q + nq
+        qd = qd + nqd
+        for fl in st.faults:
+            if fl.physical or not self._active(st, fl, t):
+                continue
+            if isinstance(fl, FrozenSensor):
+                j = self._joint(fl.joint)
+                if j not in st.frozen:
+                    st.frozen[j] = ((st.last_q[j], st.last_qd[j]) if st.last_q is not None
+                                    else (q[j], qd[j]))
+                q[j], qd[j] = st.frozen[j]
+            elif isinstance(fl, NaNSamples) and st.nan_left.get(id(fl), 0) > 0:
+                idx = slice(None) if fl.joint is None else self._joint(fl.joint)
+                q[idx] = np.nan
+                qd[idx] = np.nan
+                st.nan_left[id(fl)] -= 1
+        st.last_q, st.last_qd = q.copy(), qd.copy()
+        for a in (q, qd):
+            a.setflags(write=False)
+        tau_applied = st.tau_prev.copy()
+        tau_applied.setflags(write=False)
+        return Measurement(self.stamp(st.k), q, qd, tau_applied)

@@ -1,0 +1,84 @@
+"""Random trapezoidal / quintic point-to-point references inside the limits."""
+import numpy as np
+import pytest
+
+from reachset_ros import robot as rb
+from reachset_ros.errors import ReachsetError
+from reachset_ros.reference import ReferenceConfig, ReferenceGenerator
+
+TOL = 1e-9
+
+
+@pytest.fixture(scope="module")
+def traj():
+    gen = ReferenceGenerator(ReferenceConfig(), seed=42)
+    return gen, gen.trajectory(120.0)
+
+
+def test_limits_respected(traj):
+    gen, (t, Q, QD, QDD) = traj
+    c = gen.config
+    assert np.all(Q >= c.q_min - TOL) and np.all(Q <= c.q_max + TOL)
+    assert np.all(np.abs(QD) <= c.qd_max + TOL)
+    assert np.all(np.abs(QDD) <= c.qdd_max + TOL)
+    # defaults: Table I box (within the URDF limits), 0.7 rad/s, U_ref = [-2, 2]
+    m = rb.load_model()
+    np.testing.assert_allclose(c.q_max, np.minimum(rb.TABLE1_Q_MAX, m.upper))
+    np.testing.assert_allclose(c.qd_max, 0.7)
+    np.testing.assert_allclose(c.qdd_max, rb.U_REF)
+    # the references actually use the room they have
+    assert np.abs(QD).max() > 0.5 * c.qd_max.max()
+    assert np.abs(QDD).max() > 0.5 * rb.U_REF
+
+
+def test_both_kinds_and_consistent_derivatives(traj):
+    gen, (t, Q, QD, QDD) = traj
+    kinds = {s.kind for s in gen.segments}
+    assert kinds == {"trapezoidal", "quintic"}
+    dt = t[1] - t[0]
+    # position and velocity are continuous, and integrate the velocity / acceleration
+    np.testing.assert_allclose(np.diff(Q, axis=0), 0.5 * (QD[1:] + QD[:-1]) * dt, atol=2e-5)
+    np.testing.assert_allclose(np.diff(QD, axis=0), 0.5 * (QDD[1:] + QDD[:-1]) * dt,
+                               atol=2 * rb.U_REF * dt)
+    for s in gen.segments:                     # every segment ends at rest on its target
+        q, qd, qdd = s.evaluate(s.t0 + s.T)
+        np.testing.assert_allclose(q, s.q1, atol=1e-12)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+        q_end, _, _ = s.evaluate(s.t0 + s.T - 1e-9)
+        np.testing.assert_allclose(q_end, s.q1, atol=1e-6)
+
+
+def test_reproducible_from_seed_and_independent_of_sampling(traj):
+    gen, (t, Q, QD, QDD) = traj
+    other = ReferenceGenerator(ReferenceConfig(), seed=42)
+    ts = t[::-1][:500]                               # sampled backwards, sparsely
+    Q2, QD2, QDD2 = other.batch(ts)
+    np.testing.assert_array_equal(Q2, Q[::-1][:500])
+    np.testing.assert_array_equal(QD2, QD[::-1][:500])
+    q, qd, qdd = ReferenceGenerator(ReferenceConfig(), seed=42).sample(t[1234])
+    np.testing.assert_array_equal(q, Q[1234])
+    different = ReferenceGenerator(ReferenceConfig(), seed=43).batch(t[:2000:50])[0]
+    assert not np.allclose(different, Q[:2000:50])
+
+
+def test_custom_config_and_start():
+    cfg = ReferenceConfig(q_min=[-0.5] * 3, q_max=[0.5, 1.0, 0.2], qd_max=[0.3, 0.5, 0.1],
+                          qdd_max=1.0, kinds=("quintic",), dwell=(0.1, 0.2))
+    gen = ReferenceGenerator(cfg, q0=[0.0, 0.5, -0.2], seed=1)
+    t, Q, QD, QDD = gen.trajectory(60.0, dt=0.01)
+    np.testing.assert_allclose(Q[0], [0.0, 0.5, -0.2])
+    assert np.all(Q >= cfg.q_min - TOL) and np.all(Q <= cfg.q_max + TOL)
+    assert np.all(np.abs(QD) <= cfg.qd_max + TOL) and np.all(np.abs(QDD) <= 1.0 + TOL)
+    assert {s.kind for s in gen.segments} == {"quintic"}
+    assert all(0.1 <= s.dwell <= 0.2 for s in gen.segments)
+
+
+def test_bad_configs_are_rejected():
+    with pytest.raises(ReachsetError, match="q_max must exceed"):
+        ReferenceConfig(q_min=[0.0], q_max=[0.0])
+    with pytest.raises(ReachsetError, match="kinds"):
+        ReferenceConfig(kinds=("sine",))
+    with pytest.raises(ReachsetError, match="outside the position box"):
+        ReferenceGenerator(ReferenceConfig(), q0=[3.0, 0, 0, 0, 0, 0])
+    with pytest.raises(ReachsetError, match="before the start"):
+        ReferenceGenerator(ReferenceConfig()).sample(-1.0)
