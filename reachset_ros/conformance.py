@@ -54,17 +54,25 @@ def matvec(M, X):
     computations agree to the bit.
     """
     M = np.asarray(M, dtype=np.float64)
-    out = np.zeros((M.shape[0], X.shape[1]))
-    for i, row in enumerate(_plan(M)):
-        acc = None
-        for j, a in row:
-            term = X[j] if a == 1.0 else a * X[j]
-            if acc is None:
-                acc = term
+    return matvec_into(_plan(M), X, np.empty((M.shape[0], X.shape[1])))
+
+
+def matvec_into(plan, X, out):
+    """:func:`matvec` with a precomputed ``_plan(M)`` into a preallocated ``out`` (same arithmetic)."""
+    for i, row in enumerate(plan):
+        if not row:
+            out[i] = 0.0
+            continue
+        j, a = row[0]
+        if a == 1.0:
+            out[i] = X[j]
+        else:
+            np.multiply(a, X[j], out=out[i])
+        for j, a in row[1:]:
+            if a == 1.0:
+                out[i] += X[j]
             else:
-                acc = acc + term
-        if acc is not None:
-            out[i] = acc
+                out[i] += a * X[j]
     return out
 
 
@@ -99,7 +107,7 @@ def test_case_starts(segments, history):
     return np.concatenate(starts), np.concatenate(ends)
 
 
-def sweep(plant, estimator, y, u, segments, horizon, visit):
+def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
     """Run all sequential test cases for k = 0..horizon and call ``visit`` per step.
 
     Parameters
@@ -113,6 +121,9 @@ def sweep(plant, estimator, y, u, segments, horizon, visit):
         k*, the last step checked.
     visit : callable ``visit(k, m, t, ya)``
         ``m``: start ticks, ``t = m + k``: measurement ticks, ``ya``: (ny, M_k) deviations.
+        Called once per k and block of test cases; visitors accumulate.
+    block : int
+        Test cases processed together (memory locality only; results are identical).
 
     Returns
     -------
@@ -124,6 +135,14 @@ def sweep(plant, estimator, y, u, segments, horizon, visit):
         return 0
     order = np.argsort(-(ends - starts), kind="stable")
     starts, rem = starts[order], (ends - starts)[order]
+    # Blocks of test cases keep the working set in cache; every column's arithmetic is the
+    # same whatever the block, so results do not depend on the block size.
+    for b in range(0, len(starts), block):
+        _sweep_block(plant, estimator, y, u, starts[b:b + block], rem[b:b + block], horizon, visit)
+    return len(starts)
+
+
+def _sweep_block(plant, estimator, y, u, starts, rem, horizon, visit):
     X = estimator.estimate(plant, y, u, starts)
     for k in range(horizon + 1):
         Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
@@ -136,7 +155,6 @@ def sweep(plant, estimator, y, u, segments, horizon, visit):
         ya = y[t].T - predict_output(plant, X, U)
         visit(k, m, t, ya)
         X = advance(plant, X, U)
-    return len(starts)
 
 
 # ------------------------------------------------------------------ Theorem 1
@@ -224,8 +242,9 @@ def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None):
 
     def visit(k, m, t, ya):
         Ny = matvec(thm.normals[k], ya)
-        maxp[k] = Ny.max(axis=1)
-        maxm[k] = (-Ny).max(axis=1)
+        hi, lo = Ny.max(axis=1), (-Ny).max(axis=1)
+        maxp[k] = hi if maxp[k] is None else np.maximum(maxp[k], hi)
+        maxm[k] = lo if maxm[k] is None else np.maximum(maxm[k], lo)
         count[0] += ya.shape[1]
 
     M = sweep(plant, estimator, y, u, segments, horizon, visit)

@@ -47,6 +47,21 @@ class Estimator:
             raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
         return cls(d["name"])
 
+    def estimate_latest(self, plant, y_hist, u_hist):
+        """Initial states of test cases starting at the newest sample of each row.
+
+        ``y_hist``, ``u_hist``: shape (J, history + 1), oldest first, one row per joint with
+        a one-dimensional output/input. Same arithmetic as :meth:`estimate`.
+        """
+        if self.name == "fd":
+            if plant.A.shape[0] != 5:
+                return self.estimate(plant, y_hist.reshape(-1, 1), u_hist.reshape(-1, 1),
+                                     np.arange(y_hist.shape[0]) * y_hist.shape[1] + self.history)
+            return fd_formula(plant.dt, y_hist[:, 3], y_hist[:, 2], u_hist[:, 2], u_hist[:, 1], u_hist[:, 0])
+        H = y_hist.shape[1]
+        return self.estimate(plant, y_hist.reshape(-1, 1), u_hist.reshape(-1, 1),
+                             np.arange(y_hist.shape[0]) * H + self.history)
+
     def estimate(self, plant, y, u, m):
         """Initial states of the test cases starting at ticks ``m``.
 
@@ -81,12 +96,14 @@ def _fd(plant, y, u, m):
     if plant.A.shape[0] != 5 or y.shape[1] != 1:
         raise ReachsetError("estimator 'fd' is for the per-joint LWA-4P plant (5 states, 1 output); "
                             "use 'output' for other plants")
-    dt = plant.dt
-    ym = y[m, 0]
-    u1, u2, u3 = u[m - 1, 0], u[m - 2, 0], u[m - 3, 0]
-    v2 = (ym - y[m - 1, 0]) / dt - 0.5 * dt * u3
+    return fd_formula(plant.dt, y[m, 0], y[m - 1, 0], u[m - 1, 0], u[m - 2, 0], u[m - 3, 0])
+
+
+def fd_formula(dt, ym, ym1, u1, u2, u3):
+    """The ``fd`` estimate from y[m], y[m-1], u[m-1], u[m-2], u[m-3] (arrays of equal shape)."""
+    v2 = (ym - ym1) / dt - 0.5 * dt * u3
     v1 = v2 + dt * u3
-    X0 = np.zeros((5, len(m)))
+    X0 = np.zeros((5, len(ym)))
     X0[0] = ym
     X0[1] = ym + dt * v1 + 0.5 * dt * dt * u2
     X0[2] = v1 + dt * u2

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .conformance import Theorem1, advance, matvec, predict_output
+from .conformance import Theorem1, _plan, advance, matvec, matvec_into, predict_output
 
 
 @dataclass(frozen=True)
@@ -204,14 +204,33 @@ class Monitor:
         self.reset()
 
     def reset(self):
-        n, H = self.plant.A.shape[0], self.estimator.history
-        self.X = np.zeros((n, self.J * self.S))
-        self.start = np.full((self.J, self.S), -1, dtype=np.int64)
-        self.y_hist = np.zeros((self.J, H + 1))
-        self.u_hist = np.zeros((self.J, H + 1))
-        self.in_segment = np.zeros(self.J, dtype=np.int64)
+        p, H, J, S = self.plant, self.estimator.history, self.J, self.S
+        n, N = p.A.shape[0], self.J * self.S
+        self._planA, self._planB, self._planC = _plan(p.A), _plan(p.B), _plan(p.C)
+        self._planD = _plan(p.D) if np.any(p.D) else None
+        self._planN = _plan(self.models[0].normals[0])
+        self.X = np.zeros((n, N))
+        self._Xn = np.empty((n, N))
+        self._BU = np.empty((p.B.shape[0], N))
+        self._Y = np.empty((p.C.shape[0], N))
+        self._DU = np.empty((p.C.shape[0], N))
+        self._U = np.empty((1, N))
+        self._Ny = np.empty((1, N))
+        self.start = np.full((J, S), -1, dtype=np.int64)
+        self.ages = np.zeros((J, S), dtype=np.int64)
+        self.active = np.zeros((J, S), dtype=bool)
+        self._flat = (np.arange(J) * S)[:, None]
+        self._dpf, self._dmf = self.dp.ravel(), self.dm.ravel()
+        self.y_hist = np.zeros((J, H + 1))
+        self.u_hist = np.zeros((J, H + 1))
+        self.in_segment = np.zeros(J, dtype=np.int64)
         self.last_stamp = None
         self.tick_index = -1
+
+    def _drop(self, rows):
+        self.start[rows] = -1
+        self.active[rows] = False
+        self.in_segment[rows] = 0
 
     def tick(self, stamp_ns, y, u):
         """Check one tick; returns a dict of per-joint arrays.
@@ -229,35 +248,51 @@ class Monitor:
             step = (int(stamp_ns) - self.last_stamp) * 1e-9
             if not (0.5 * p.dt <= step <= 1.5 * p.dt):
                 gap = True
-                self.start[:] = -1
-                self.in_segment[:] = 0
+                self._drop(slice(None))
         self.last_stamp = int(stamp_ns)
         valid = np.isfinite(y) & np.isfinite(u)
-        if not valid.all():
-            self.start[~valid] = -1
-            self.in_segment[~valid] = 0
+        all_valid = bool(valid.all())
+        if not all_valid:
+            self._drop(~valid)
+            y = np.where(valid, y, 0.0)
+            u = np.where(valid, u, 0.0)
         self.y_hist[:, :-1] = self.y_hist[:, 1:]
         self.y_hist[:, -1] = y
         self.u_hist[:, :-1] = self.u_hist[:, 1:]
         self.u_hist[:, -1] = u
-        self.in_segment[valid] += 1
+        if all_valid:
+            self.in_segment += 1
+        else:
+            self.in_segment[valid] += 1
         slot = t % S
-        self.start[:, slot] = -1
+        self.ages += 1
+        self.active[:, slot] = False
         new = self.in_segment > H
-        if new.any():
+        if new.all():
+            x0 = self.estimator.estimate_latest(p, self.y_hist, self.u_hist)
+            self.X[:, slot::S] = x0
+            self.start[:, slot] = t
+            self.ages[:, slot] = 0
+            self.active[:, slot] = True
+        elif new.any():
             js = np.flatnonzero(new)
-            yh = self.y_hist.reshape(-1, 1)
-            uh = self.u_hist.reshape(-1, 1)
-            x0 = self.estimator.estimate(p, yh, uh, js * (H + 1) + H)
+            x0 = self.estimator.estimate_latest(p, self.y_hist[js], self.u_hist[js])
             self.X[:, js * S + slot] = x0
             self.start[js, slot] = t
-        active = self.start >= 0
-        ages = np.where(active, t - self.start, 0)
-        U = np.repeat(u, S)[None, :]
-        ya = np.repeat(y, S) - predict_output(p, self.X, U)[0]
-        Ny = matvec(self.models[0].normals[0], ya[None, :])[0].reshape(J, S)
-        mp = np.where(active, self.dp[self._jidx, ages] - Ny, np.inf)
-        mm = np.where(active, self.dm[self._jidx, ages] + Ny, np.inf)
+            self.ages[js, slot] = 0
+            self.active[js, slot] = True
+        active = self.active
+        U = self._U
+        U.reshape(J, S)[:] = u[:, None]
+        Ystar = matvec_into(self._planC, self.X, self._Y)
+        if self._planD is not None:
+            Ystar += matvec_into(self._planD, U, self._DU)
+        ya = np.repeat(y, S)[None, :] - Ystar
+        Ny = matvec_into(self._planN, ya, self._Ny)[0].reshape(J, S)
+        ages = np.minimum(self.ages, S - 1)
+        idx = self._flat + ages
+        mp = np.where(active, self._dpf[idx] - Ny, np.inf)
+        mm = np.where(active, self._dmf[idx] + Ny, np.inf)
         jp, jm = mp.argmin(axis=1), mm.argmin(axis=1)
         r = np.arange(J)
         vp, vm = mp[r, jp], mm[r, jm]
@@ -265,19 +300,18 @@ class Monitor:
         col = np.where(use_p, jp, jm)
         margin = np.where(use_p, vp, vm)
         checked = active.sum(axis=1)
-        status = []
-        for j in range(J):
-            if not valid[j]:
-                status.append("invalid")
-            elif margin[j] < 0:
-                status.append("violation")
-            else:
-                status.append("gap_reset" if gap else "ok")
+        # advance all nominal states: X <- A X + B U (same arithmetic as conformance.advance)
+        Xn = matvec_into(self._planA, self.X, self._Xn)
+        Xn += matvec_into(self._planB, U, self._BU)
+        self.X, self._Xn = Xn, self.X
+        if all_valid and not gap and margin.min() >= 0:
+            status = ["ok"] * J
+        else:
+            status = ["invalid" if not valid[j] else "violation" if margin[j] < 0 else
+                      ("gap_reset" if gap else "ok") for j in range(J)]
         k = ages[r, col]
-        dev = np.where(use_p, Ny[r, col], -Ny[r, col])
-        bound = np.where(use_p, self.dp[r, k], self.dm[r, k])
-        self.X = advance(p, self.X, U)
         has = checked > 0
         return {"status": status, "margin": np.where(valid, margin, -np.inf), "checked": checked,
                 "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
-                "deviation": np.where(has, dev, 0.0), "bound": np.where(has, bound, 0.0)}
+                "deviation": np.where(has, np.where(use_p, Ny[r, col], -Ny[r, col]), 0.0),
+                "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0)}

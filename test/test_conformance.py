@@ -288,3 +288,20 @@ def test_cli_bad_input_exit_2_one_line(tmp_path, case):
     assert r.stderr.count("\n") == 1 and r.stderr.startswith("reachset identify: error:")
     assert "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_sweep_results_do_not_depend_on_the_block_size(lwa_data):
+    p, y, u = lwa_data
+    segs = ((0, 2500), (2501, 6000))
+
+    def collect(block):
+        out = {}
+
+        def visit(k, m, t, ya):
+            for mm, v in zip(m.tolist(), ya[0].tolist()):
+                out[(k, mm)] = v
+        cf.sweep(p, Estimator("fd"), y, u, segs, 40, visit, block=block)
+        return out
+
+    a, b = collect(16384), collect(97)
+    assert a == b and len(a) > 100000

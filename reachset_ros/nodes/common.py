@@ -94,3 +94,8 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
         return (not bad), "; ".join(bad)
     finally:
         node.destroy_client(client)
+
+#: /conformance/status: reliable with a deep queue, so a slow subscriber (a recorder under
+#: load) does not lose ticks.
+STATUS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)

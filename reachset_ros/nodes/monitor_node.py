@@ -29,7 +29,7 @@ from ..bags import BagWriter, joint_state, plant_input
 from ..conformance import Theorem1
 from ..errors import ReachsetError
 from ..monitor import Monitor, MonitorModel
-from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns, to_stamp
+from .common import SAFE_STOP_QOS, STATUS_QOS, TICK_QOS, desc, spin_node, stamp_ns, to_stamp
 
 
 class MonitorCore:
@@ -112,7 +112,7 @@ class MonitorNode(Node):
         self.stop_active = False
         self.stop_msg = None
         self.last_tick_wall = None
-        self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", TICK_QOS)
+        self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", STATUS_QOS)
         self.stop_pub = self.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
 from ..bags import BagWriter
-from .common import SAFE_STOP_QOS, TICK_QOS, desc
+from .common import SAFE_STOP_QOS, STATUS_QOS, desc
 
 TOPICS = {
     "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
@@ -45,7 +45,7 @@ class RecorderNode(Node):
                 self.get_logger().warning(f"unknown topic {topic}: not recorded")
                 continue
             cls, typename = TOPICS[topic]
-            qos = SAFE_STOP_QOS if topic in ("/safe_stop", "/sim/fault_onset") else TICK_QOS
+            qos = SAFE_STOP_QOS if topic in ("/safe_stop", "/sim/fault_onset") else STATUS_QOS
             self.create_subscription(cls, topic, self._cb(topic, typename), qos, raw=True)
 
     def _cb(self, topic, typename):
