@@ -45,7 +45,7 @@ test: venv
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 demo: venv
-	$(VENV)/bin/reachset selftest
+	$(VENV)/bin/reachset demo --headless
 
 benchmark: venv
 	$(PY) benchmarks/run_all.py

@@ -13,6 +13,7 @@ NODES = {
     "controller_node": "reachset_ros.nodes.controller_node:main",
     "monitor_node": "reachset_ros.nodes.monitor_node:main",
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
+    "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
 }
 SCRIPTS = ["reachset = reachset_ros.cli:main"] + [f"{k} = {v}" for k, v in NODES.items()]
 

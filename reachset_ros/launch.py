@@ -33,6 +33,8 @@ def start(node: str, params: dict | None = None, workdir=".", env=None, node_nam
     workdir.mkdir(parents=True, exist_ok=True)
     node_name = node_name or node
     cmd = [sys.executable, "-m", f"reachset_ros.nodes.{node}", "--ros-args"]
+    if node_name != node:
+        cmd += ["-r", f"__node:={node_name}"]
     if params:
         pfile = workdir / f"{node_name}.params.yaml"
         pfile.write_text(yaml.safe_dump({node_name: {"ros__parameters": params}}))

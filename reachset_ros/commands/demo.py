@@ -1,13 +1,13 @@
 """``reachset demo``: the whole system on the simulated arm, every node a separate process.
 
 1. initial gains, recorded; 2. the synthesis node runs combined synthesis on that bag and
-applies gains and model live through the parameter services; 3. a run with the new gains
-is recorded and the sets re-identified with the controller fixed (the paper's iterative
-procedure, Sec. III-D); 4. a monitored run (recorded to ``--record``) into which a fault is
+applies the gains live through the parameter services; 3. a run with the new gains is
+recorded and the combined synthesis repeated on both recordings (the paper's iterative
+procedure, Sec. III-D, second iteration); gains and model go to the nodes, the model to
+the monitor; 4. a monitored run (recorded to ``--record``) into which a fault is
 injected; the monitor stops the arm. Prints a summary and writes plots.
 """
 import json
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -30,7 +30,7 @@ def add_arguments(p):
     p.add_argument("--record", help="rosbag2 directory for the monitored run (default: in --workdir)")
     p.add_argument("--workdir", help="where logs, bags, models and plots go (default: a new temporary dir)")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated arm and the reference")
-    p.add_argument("--fault", default="acceleration:arm_1_joint:5",
+    p.add_argument("--fault", default="acceleration:arm_1_joint:30",
                    help="KIND:JOINT:MAGNITUDE (kinds: acceleration, torque, payload, bias, frozen, nan)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -74,7 +74,8 @@ def summarize(res, record, workdir):
         conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop", "/sim/fault_onset")]
         for c, _t, raw in reader.messages(connections=conns):
             m = ts.deserialize_cdr(raw, c.msgtype)
-            st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            h = m if c.topic == "/sim/fault_onset" else m.header
+            st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
             if c.topic == "/conformance/status":
                 status.append((st, bool(m.conformant)))
             elif c.topic == "/safe_stop":

@@ -36,14 +36,31 @@ def desc(description, lo=None, hi=None, integer=False, read_only=False):
 
 
 def spin_node(node_cls, args=None, **kwargs):
-    """The usual ``main``: init, spin until Ctrl-C or shutdown, clean up."""
+    """The usual ``main``: init, spin until Ctrl-C or shutdown, clean up.
+
+    An exception in one callback (including rclpy failing to take a message) is logged
+    and counted, never fatal: a node must end in a defined state, and for the monitor a
+    lost message is missing data, which its watchdog handles.
+    """
+    from rclpy.executors import SingleThreadedExecutor
     rclpy.init(args=args if args is not None else sys.argv)
     node = node_cls(**kwargs)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    node.callback_errors = 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while rclpy.ok():
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                break
+            except Exception as e:  # noqa: BLE001
+                node.callback_errors += 1
+                node.get_logger().error(f"callback failed ({type(e).__name__}: {e}); continuing")
+    except KeyboardInterrupt:
         pass
     finally:
+        executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -55,7 +55,7 @@ class DemoDriver(Node):
 
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
-             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 5.0), initial=None):
+             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
@@ -72,12 +72,18 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         procs.append(launch.start("reference_node", {"seed": seed}, workdir))
         procs.append(launch.start("observer_node", {**common, **initial}, workdir))
         procs.append(launch.start("controller_node", {**common, **initial}, workdir))
-        procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir))
-        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis")}, workdir))
+        procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
+                                  workdir))
+        from ..synthesis import config_path
+        cfg = config_path()
+        demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
+        extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else [""]
+        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra},
+                                  workdir))
 
         def record_phase(name, seconds, topics, path):
             rec = launch.start("recorder_node", {"output": str(path), "topics": topics}, workdir,
-                               node_name=f"recorder_node_{name}")
+                               node_name="recorder_node_" + name.replace(" ", "_"))
             driver.spin_for(2.0)  # discovery
             log(f"[demo] {name}: recording {seconds:.0f} s to {path}")
             t0 = time.monotonic()
@@ -90,6 +96,10 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         launch.stop([rec])
         out["phases"].append({"name": "initial gains", "bag": str(bag1), "gains": initial})
         # 2. combined synthesis on that bag, applied live through the parameter services
+        # training phases run unmonitored: the monitor gets the model only after re-identification
+        ok, why = set_remote_parameters(driver, "synthesis_node", {"targets": ["controller_node", "observer_node"]})
+        if not ok:
+            raise RuntimeError(f"synthesis node: {why}")
         log("[demo] synthesis node: combined synthesis on the recorded bag")
         req = Synthesize.Request(bags=[str(bag1)], joints=JOINTS, mode="combined", apply=True)
         res = driver.call(Synthesize, "/synthesis_node/synthesize", req)
@@ -102,13 +112,21 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         rec, _ = record_phase("new gains", train, CORE_TOPICS, bag2)
         driver.spin_for(train)
         launch.stop([rec])
-        log("[demo] synthesis node: re-identification with the new gains (controller fixed)")
-        req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="reidentify", apply=True)
+        ok, why = set_remote_parameters(driver, "synthesis_node",
+                                        {"targets": ["controller_node", "observer_node", "monitor_node"]})
+        if not ok:
+            raise RuntimeError(f"synthesis node: {why}")
+        log("[demo] synthesis node: second iteration, combined synthesis on both recordings")
+        req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="combined", apply=True)
         res = driver.call(Synthesize, "/synthesis_node/synthesize", req)
         out["reidentify"] = _result_dict(res)
         if not res.success:
-            raise RuntimeError(f"re-identification failed: {res.message}")
-        # 4. monitored run, fault injected
+            raise RuntimeError(f"second synthesis iteration failed: {res.message}")
+        # 4. monitored run, fault injected (the monitor starts fresh with the new model)
+        reset = driver.call(Trigger, "/monitor_node/reset", Trigger.Request(), timeout=30.0)
+        if not reset.success:
+            raise RuntimeError(f"monitor reset failed: {reset.message}")
+        driver.stops.clear()
         rec, t0 = record_phase("monitored", duration, MONITOR_TOPICS, record)
         out["monitored_start_wall"] = time.time()
         if fault_at is not None and fault_at < duration:
@@ -127,7 +145,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             driver.spin_for(duration)
         launch.stop([rec])
         active = [s for s in driver.stops if s.active]
-        out["fault_injected_ns"] = stamp_ns(driver.onsets[0].header.stamp) if driver.onsets else None
+        out["fault_injected_ns"] = stamp_ns(driver.onsets[0].stamp) if driver.onsets else None
         out["fault"] = driver.onsets[0].frame_id if driver.onsets else None
         out["safe_stop_ns"] = stamp_ns(active[0].header.stamp) if active else None
         out["safe_stop"] = ({"reason": active[0].reason, "kind": active[0].kind, "joint": active[0].joint,

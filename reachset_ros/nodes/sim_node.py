@@ -2,7 +2,11 @@
 
 Publishes ``/joint_states`` at 250 Hz from its own clock (stamp = the simulator's tick
 time, anchored to the wall clock at start); applies the latest ``/effort_commands``
-(joint order of the ``joints`` parameter) with the paper's one-sample input delay. Faults
+(joint order of the ``joints`` parameter) with the paper's one-sample input delay. In
+lockstep mode (``lockstep_timeout`` > 0, the default) a tick waits, up to that timeout,
+for the command computed from the previous measurement, so that DDS latency on a loaded
+machine does not add delays the model does not have; the stamps stay on the simulation
+clock. With 0 it runs free like a real drive and holds the last command. Faults
 are injected through the ``fault`` parameters; the stamp of the first measurement a fault
 can change is published, latched, on ``/sim/fault_onset`` (std_msgs/Header, frame_id = the
 fault's description).
@@ -45,6 +49,9 @@ class SimNode(Node):
         self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True))
         self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise"))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("lockstep_timeout", 0.05,
+                               desc("wait up to this long (s) for the command of the last measurement "
+                                    "before stepping with the previous one (0: free-running)", 0.0, 1.0))
         self.declare_parameter("fault", "none", desc("inject now: " + " | ".join(FAULTS)))
         self.declare_parameter("fault_joint", "arm_1_joint", desc("joint of the fault"))
         self.declare_parameter("fault_magnitude", 5.0,
@@ -67,8 +74,11 @@ class SimNode(Node):
         self.onset_pub = self.create_publisher(Header, "sim/fault_onset", SAFE_STOP_QOS)
         self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.dt = dt
+        self.next_wall = time.monotonic() + dt
+        self.published_wall = time.monotonic()
         self.publish(self.m)
-        self.create_timer(dt, self.tick)
+        self.create_timer(min(dt, 0.001), self.tick)
 
     def on_effort(self, msg):
         tau = np.asarray(msg.data, dtype=np.float64)
@@ -102,10 +112,21 @@ class SimNode(Node):
         return SetParametersResult(successful=True)
 
     def tick(self):
+        """Step when the period is due and the command of the last measurement has arrived
+        (lockstep, as a simulator may: the stamps stay on the simulation clock), or when
+        ``lockstep_timeout`` has passed (then the previous command is held, as a real drive does)."""
+        now = time.monotonic()
+        if now < self.next_wall:
+            return
+        timeout = float(self.get_parameter("lockstep_timeout").value)
         if not self.fresh:
+            if timeout > 0 and now - self.published_wall < timeout:
+                return
             self.counters["stale_effort"] += 1
         self.fresh = False
+        self.next_wall = max(self.next_wall + self.dt, now)
         self.m = self.arm.step(self.tau)
+        self.published_wall = time.monotonic()
         self.counters["ticks"] += 1
         self.publish(self.m)
 

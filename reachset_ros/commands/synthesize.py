@@ -1,0 +1,174 @@
+"""``reachset synthesize``: combined controller synthesis and reachset-conformant identification.
+
+Per joint, paper eq. 10: min ||R_e|| over the controller/observer parameters and the
+disturbance sets, subject to Theorem-1 conformance on the bags' test cases and
+R_u (+) U_ff inside U_p = [-u_max, u_max]. See docs/synthesis.md and
+:mod:`reachset_ros.synthesis`.
+
+Modes:
+
+- ``combined`` (default): eq. 10; also runs the separate approach (reported under
+  ``separate``; it seeds the combined search, so combined ||R_e|| <= separate ||R_e||).
+- ``separate``: identify min ||W|| + ||V||, then search the parameters with the sets fixed.
+- ``reidentify``: the controller of ``--model`` is kept, only the sets are re-identified
+  (the inner linear programme of eq. 10; paper Sec. III-D, step 3).
+
+``--lqg-r R...`` adds the LQG baseline of the paper's Table IV (with the result's sets).
+``--out`` writes a model file (``reachset check`` accepts it) whose joints carry the gains.
+"""
+import math
+import sys
+import time
+
+from .. import model as mdl
+from .. import synthesis as sy
+from ..errors import ReachsetError
+from ..estimators import ESTIMATORS
+from . import emit
+from ._bagargs import add_bag_arguments, check_out_path, parse_joints
+
+NAME = "synthesize"
+HELP = "combined controller synthesis and reachset-conformant identification (paper eq. 10)"
+
+
+def add_arguments(p):
+    add_bag_arguments(p)
+    p.add_argument("--mode", choices=["combined", "separate", "reidentify"], default="combined",
+                   help="combined (eq. 10, default), separate (identify then synthesise) or reidentify "
+                        "(controller of --model fixed, sets updated)")
+    p.add_argument("--model", help="model file whose gains reidentify keeps (mode reidentify)")
+    p.add_argument("--observer", choices=["hg", "eso"], default="hg",
+                   help="high-gain (hg, default) or extended-state observer (eso)")
+    p.add_argument("--controller", choices=["static", "compensated"], default=None,
+                   help="static (default with hg) or disturbance-compensated feedback (default with eso)")
+    p.add_argument("--free", help="comma-separated parameters to search (default from the config: "
+                                  "hg: omega,zeta; eso: l1,l2,l3)")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="fix a parameter (repeatable), e.g. --fix omega=20")
+    p.add_argument("--bound", action="append", default=[], metavar="NAME=LO,HI",
+                   help="search box of a parameter (repeatable)")
+    p.add_argument("--config", help="synthesis config YAML (default config/synthesis.yaml)")
+    p.add_argument("--u-max", type=float, nargs="+", metavar="F",
+                   help="U_p = [-F, F] in rad/s^2: one value for all joints or one per joint "
+                        "(default: config u_max per joint, the paper's Table I)")
+    p.add_argument("--u-ff", type=float, default=None,
+                   help="U_ff = [-F, F], bound of the feedforward qdd_d (default 2, paper Sec. IV)")
+    p.add_argument("--horizon", type=int, default=None, help="k*, ticks (default 125; reidentify: the model's)")
+    p.add_argument("--estimator", default=None, choices=sorted(ESTIMATORS),
+                   help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
+    p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
+                   help="lower bounds on [alpha_W..., alpha_V...]")
+    p.add_argument("--reference-method", type=int, choices=[1, 2, 3], default=3,
+                   help="Appendix B: 3 (default) sets over the bags' references inside the optimisation; "
+                        "2 optimise without, check R_u + u_e,ff for the recorded references; "
+                        "1 the controller tracks y_cl,ref (no u_e,ff)")
+    p.add_argument("--eso-input", choices=["previous", "current"], default="previous",
+                   help="plant input fed to the ESO: u_p[k-1] (default) or u_p[k]")
+    p.add_argument("--seed", type=int, default=None, help="seed of the global search (default: config, 0)")
+    p.add_argument("--lqg-r", type=float, nargs="+", metavar="R",
+                   help="LQG baseline (paper Table IV) for these input weights r")
+    p.add_argument("--out", help="write the model (sets + gains) YAML here")
+    p.add_argument("--plot", metavar="DIR", help="write PNG figures (R_e, R_u, conformance) into DIR")
+    p.add_argument("--dt", type=float, default=0.004, help="sampling time, s")
+
+
+def _kv(items, what):
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise ReachsetError(f"--{what}: expected NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _finite(name, v, positive=False):
+    if v is None:
+        return
+    if not math.isfinite(v) or (positive and v <= 0) or (not positive and v < 0):
+        raise ReachsetError(f"--{name} must be a {'positive' if positive else 'non-negative'} finite number, got {v}")
+
+
+def _human(res):
+    lines = []
+    for n, r in res.items():
+        g = r.gains()
+        pars = ", ".join(f"{k}={g[k]:.4g}" for k in sy.PARAMS[r.observer])
+        lines.append(f"{n}: {r.mode} {r.observer}+{r.controller}: ||R_e|| = {r.re_norm:.4g}, "
+                     f"R_u = [{r.ru[0]:.4g}, {r.ru[1]:.4g}] in U_p = [-{r.u_max:g}, {r.u_max:g}]; {pars}; "
+                     f"alpha_w = [{', '.join(f'{a:.4g}' for a in r.alpha_w)}], "
+                     f"alpha_v = [{', '.join(f'{a:.4g}' for a in r.alpha_v)}]; "
+                     f"{'conformant' if r.conformant else 'NOT conformant'} on {r.test_cases} test cases")
+        if r.separate is not None:
+            s = r.separate
+            lines.append(f"  separate: ||R_e|| = {s.re_norm:.4g}, R_u = [{s.ru[0]:.4g}, {s.ru[1]:.4g}], "
+                         + ", ".join(f"{k}={s.params[k]:.4g}" for k in (s.free or sy.PARAMS[s.observer]))
+                         + f", alpha_w = [{', '.join(f'{a:.4g}' for a in s.alpha_w)}]")
+        for row in r.extra.get("lqg", []):
+            if "re_norm" in row:
+                lines.append(f"  LQG r={row['r']:g}: ||R_e|| = {row['re_norm']:.4g}, "
+                             f"R_u = [{row['ru'][0]:.4g}, {row['ru'][1]:.4g}]"
+                             + ("" if row["ru_inside_up"] else "  (outside U_p)"))
+            else:
+                lines.append(f"  LQG r={row['r']:g}: {row.get('error', 'failed')}")
+    return "\n".join(lines)
+
+
+def _fix(items):
+    fix = {}
+    for k, v in _kv(items, "fix").items():
+        try:
+            fix[k] = float(v)
+        except ValueError:
+            raise ReachsetError(f"--fix {k}: {v!r} is not a number") from None
+    return fix
+
+
+def _bounds(items):
+    bounds = {}
+    for k, v in _kv(items, "bound").items():
+        try:
+            lo, hi = (float(x) for x in v.split(","))
+        except ValueError:
+            raise ReachsetError(f"--bound {k}: expected LO,HI, got {v!r}") from None
+        bounds[k] = (lo, hi)
+    return bounds
+
+
+def run(args):
+    t0 = time.perf_counter()
+    if args.dt <= 0 or not math.isfinite(args.dt):
+        raise ReachsetError("--dt must be positive")
+    _finite("u-ff", args.u_ff)
+    if args.horizon is not None and args.horizon < 0:
+        raise ReachsetError("--horizon must be >= 0")
+    for v in args.u_max or []:
+        _finite("u-max", v, positive=True)
+    for r in args.lqg_r or []:
+        _finite("lqg-r", r, positive=True)
+    if args.mode == "reidentify" and not args.model:
+        raise ReachsetError("--mode reidentify needs --model (the model whose gains are kept)")
+    if args.mode != "reidentify" and args.model:
+        raise ReachsetError("--model is only used with --mode reidentify")
+    out = check_out_path(args.out)
+    free = None if args.free is None else [x.strip() for x in args.free.split(",") if x.strip()]
+    joints = None if args.joints in (None, "all") else parse_joints(args.joints)
+    bs = sy.synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
+                            _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
+                            args.alpha_lower, args.reference_method, args.eso_input, args.seed,
+                            tuple(args.lqg_r or ()), args.config, args.model, args.dt)
+    # everything computed: now write (nothing half-written on errors above)
+    result = bs.as_dict()
+    plots = []
+    if args.plot:
+        from .. import plots as pl
+        names = list(bs.results)
+        est_rows = sy.read_estimates(args.bags, names)
+        for pb in bs.problems:
+            plots += [str(p) for p in pl.plot_joint(args.plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
+        result["plots"] = plots
+    if out is not None:
+        mdl.save(bs.model("reachset " + " ".join(sys.argv[1:])), out)
+        result["model"] = str(out)
+    result["seconds"] = round(time.perf_counter() - t0, 3)
+    emit(args, result, _human(bs.results) + (f"\nmodel written to {out}" if out else ""))

@@ -1,0 +1,257 @@
+"""PNG figures of the synthesis results, in the style of the paper's Figs. 6-9 (matplotlib, Agg).
+
+* :func:`plot_tracking_error` - ``R_e`` as a box in the (position error, velocity error)
+  plane with the measured tracking errors ``[q_hat - q_d, qd_hat - qd_d]`` of the bag
+  (needs ``/observer/estimate`` and ``/reference``); the separate approach's box and the
+  LQG boxes when given (paper Figs. 6, 7, 9).
+* :func:`plot_input` - the measured plant inputs ``u_p`` over time with ``R_u`` and ``U_p``
+  (paper Fig. 6, right).
+* :func:`plot_conformance` - Theorem 1: the extremes of the deviations ``y_a[k]`` over all
+  test cases against the bounds of ``R_a[k]`` (available for every bag; the plot to look at
+  when the bag has no estimates/references).
+
+Every function writes one PNG and returns its path. No ROS import.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["plot_tracking_error", "plot_input", "plot_conformance", "plot_joint", "tracking_errors"]
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _box(ax, center, radius, **kw):
+    from matplotlib.patches import Rectangle
+    c, r = np.asarray(center, float), np.asarray(radius, float)
+    ax.add_patch(Rectangle((c[0] - r[0], c[1] - r[1]), 2 * r[0], 2 * r[1], fill=False, **kw))
+
+
+def _thin(n, most=20000):
+    return np.arange(n) if n <= most else np.linspace(0, n - 1, most).astype(int)
+
+
+def tracking_errors(estimates, references):
+    """Measured tracking errors of one joint, paired by stamp.
+
+    Parameters
+    ----------
+    estimates : (stamps, values (T, >= 2)) with q_hat, qd_hat columns
+    references : list of :class:`reachset_ros.synthesis.Reference`
+
+    Returns
+    -------
+    ndarray (N, 2) of [q_hat - q_d, qd_hat - qd_d] at the common stamps
+    """
+    if estimates is None or not references:
+        return np.zeros((0, 2))
+    st, v = estimates
+    rs = np.concatenate([r.stamps for r in references])
+    rq = np.concatenate([r.q for r in references])
+    rqd = np.concatenate([r.qd for r in references])
+    common, ie, ir = np.intersect1d(st, rs, return_indices=True)
+    return np.column_stack([v[ie, 0] - rq[ir], v[ie, 1] - rqd[ir]])
+
+
+def plot_tracking_error(path, result, errors=None, separate=None, lqg=None, title=None):
+    """R_e (interval hull) as a box with measured tracking errors; separate/LQG boxes overlaid.
+
+    Parameters
+    ----------
+    path : path of the PNG
+    result : :class:`reachset_ros.synthesis.JointResult`
+    errors : ndarray (N, 2), optional
+        Measured ``[q_hat - q_d, qd_hat - qd_d]``.
+    separate : JointResult, optional
+    lqg : list of dict, optional
+        Rows of :func:`reachset_ros.synthesis.lqg_baseline` (boxes need ``re_radius``).
+    """
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    if errors is not None and len(errors):
+        i = _thin(len(errors))
+        ax.plot(errors[i, 0], errors[i, 1], ".", ms=1.5, color="0.5", alpha=0.5, label="measured tracking error (recording's gains)")
+    _box(ax, result.re_center, result.re_radius, ec="tab:blue", lw=2,
+         label=f"R_e {result.mode} (||R_e|| = {result.re_norm:.3g})")
+    rads = [np.asarray(result.re_radius)]
+    if separate is not None:
+        _box(ax, separate.re_center, separate.re_radius, ec="tab:red", lw=1.5, ls="--",
+             label=f"R_e separate (||R_e|| = {separate.re_norm:.3g})")
+        rads.append(np.asarray(separate.re_radius))
+    for row in lqg or []:
+        if row.get("re_radius"):
+            _box(ax, result.re_center, row["re_radius"], ec="tab:green", lw=1, ls=":",
+                 label=f"LQG r = {row['r']:g} (||R_e|| = {row['re_norm']:.3g})")
+            rads.append(np.asarray(row["re_radius"]))
+    r = np.max(rads, axis=0) * 1.15 + np.abs(np.asarray(result.re_center))
+    ax.set_xlim(-r[0], r[0])
+    ax.set_ylim(-r[1], r[1])
+    ax.set_xlabel("position error  q_hat - q_d  [rad]")
+    ax.set_ylabel("velocity error  qd_hat - qd_d  [rad/s]")
+    ax.set_title(title or f"{result.name}: reachable tracking error")
+    ax.legend(loc="upper right", fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_input(path, result, u=None, dt=0.004, separate=None, title=None):
+    """Measured plant input over time against R_u and U_p."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    if u is not None and len(u):
+        u = np.asarray(u, float).ravel()
+        i = _thin(len(u))
+        ax.plot(i * dt, u[i], lw=0.5, color="0.4", label="measured u_p")
+    T = (len(u) if u is not None and len(u) else 1) * dt
+    ax.axhspan(result.ru[0], result.ru[1], color="tab:blue", alpha=0.15,
+               label=f"R_u {result.mode} [{result.ru[0]:.3g}, {result.ru[1]:.3g}]")
+    if separate is not None:
+        for v in separate.ru:
+            ax.axhline(v, color="tab:red", ls="--", lw=1)
+        ax.plot([], [], color="tab:red", ls="--", label=f"R_u separate [{separate.ru[0]:.3g}, {separate.ru[1]:.3g}]")
+    for v in (-result.u_max, result.u_max):
+        ax.axhline(v, color="k", lw=1.5)
+    ax.plot([], [], color="k", label=f"U_p = [-{result.u_max:g}, {result.u_max:g}]")
+    ax.set_xlim(0, T)
+    lim = 1.1 * max(result.u_max, abs(result.ru[0]), abs(result.ru[1]))
+    ax.set_ylim(-lim, lim)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("u_p [rad/s^2]")
+    ax.set_title(title or f"{result.name}: reachable input")
+    ax.legend(loc="upper right", fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_conformance(path, problem, result, separate=None, title=None):
+    """Theorem 1 per k: max/min of the deviations y_a[k] over all test cases vs. R_a[k]."""
+    from . import conformance as cf
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    K = len(problem.devs.maxp)
+    k = np.arange(K)
+    up = np.array([problem.devs.maxp[i][0] for i in range(K)])
+    lo = np.array([-problem.devs.maxm[i][0] for i in range(K)])
+    ax.fill_between(k, lo, up, color="0.6", alpha=0.6, label="measured y_a (all test cases)")
+    for res, col, ls, lab in ((result, "tab:blue", "-", result.mode), (separate, "tab:red", "--", "separate")):
+        if res is None:
+            continue
+        xi = cf.xi_of(res.c_w, res.c_v, res.alpha_w, res.alpha_v)
+        offs = problem.thm.offsets(xi)
+        dp = np.array([o[0][0] for o in offs])
+        dm = np.array([o[1][0] for o in offs])
+        ax.plot(k, dp, color=col, ls=ls, label=f"R_a bounds ({lab})")
+        ax.plot(k, -dm, color=col, ls=ls)
+    ax.set_xlabel("k (ticks after the test case's start)")
+    ax.set_ylabel("y_a [rad]")
+    ax.set_title(title or f"{problem.name}: reachset conformance (Theorem 1)")
+    ax.legend(loc="upper left", fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_joint(directory, problem, result, estimates=None):
+    """All figures of one joint into ``directory``; returns the list of written paths.
+
+    ``estimates``: ``(stamps, values)`` of ``/observer/estimate`` for this joint, or None.
+    """
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    sep = result.separate
+    lqg = result.extra.get("lqg")
+    errs = tracking_errors(estimates, problem.references)
+    out = [plot_tracking_error(d / f"{result.name}_re.png", result, errs, sep, lqg),
+           plot_input(d / f"{result.name}_ru.png", result, problem.u[:, 0], problem.plant.dt, sep),
+           plot_conformance(d / f"{result.name}_conformance.png", problem, result, sep)]
+    return out
+
+
+def _read_topics(bag, topics):
+    """{topic: {stamp: msg}} of a bag (small demo bags only)."""
+    from rosbags.highlevel import AnyReader
+
+    from .bags import typestore
+    ts = typestore()
+    out = {t: {} for t in topics}
+    with AnyReader([Path(bag)], default_typestore=ts) as reader:
+        conns = [c for c in reader.connections if c.topic in out]
+        for c, _t, raw in reader.messages(connections=conns):
+            m = ts.deserialize_cdr(raw, c.msgtype)
+            out[c.topic][m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec] = m
+    return out
+
+
+def demo_plots(res, record, workdir):
+    """Figures of ``reachset demo``: per joint the measured tracking errors of the monitored
+    run (before the fault) against the guaranteed R_e, and the monitor's margins over time
+    with the fault and the safe stop marked. Returns the PNG paths."""
+    plt = _plt()
+    outdir = Path(workdir) / "plots"
+    outdir.mkdir(parents=True, exist_ok=True)
+    data = _read_topics(record, ["/observer/estimate", "/reference", "/conformance/status"])
+    est, ref, status = data["/observer/estimate"], data["/reference"], data["/conformance/status"]
+    fault = res.get("fault_injected_ns")
+    stop = res.get("safe_stop_ns")
+    until = min(x for x in (fault, stop, float("inf")) if x is not None)
+    syn = (res.get("reidentify") or res.get("synthesis") or {}).get("joints", {})
+    stamps = sorted(s for s in est if s in ref and s < until)
+    paths = []
+    names = list(syn)
+    if names and stamps:
+        fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7))
+        for ax, name in zip(np.ravel(axes), names):
+            j = syn[name]
+            e = np.array([[est[s].position[list(est[s].name).index(name)] - ref[s].position[list(ref[s].name).index(name)],
+                           est[s].velocity[list(est[s].name).index(name)] - ref[s].velocity[list(ref[s].name).index(name)]]
+                          for s in stamps])
+            r = j["re_radius"]
+            _box(ax, [0.0, 0.0], r, edgecolor="tab:blue", linewidth=2, label="R_e (guaranteed)")
+            ax.plot(e[:, 0], e[:, 1], ".", ms=1, color="tab:red", label="measured")
+            inside = np.mean((np.abs(e[:, 0]) <= r[0]) & (np.abs(e[:, 1]) <= r[1]))
+            ax.set_title(f"{name}: ||R_e|| = {j['re_norm']:.3g}, {inside:.1%} inside", fontsize=9)
+            ax.set_xlabel("q error [rad]")
+            ax.set_ylabel("qdot error [rad/s]")
+            ax.set_xlim(-1.2 * r[0], 1.2 * r[0])
+            ax.set_ylim(-1.2 * r[1], 1.2 * r[1])
+        np.ravel(axes)[0].legend(fontsize=7, loc="upper right")
+        fig.tight_layout()
+        p = outdir / "demo_tracking_error.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(str(p))
+    if status:
+        ss = sorted(status)
+        t0 = ss[0]
+        t = (np.array(ss) - t0) * 1e-9
+        margins = np.array([list(status[s].margin) for s in ss])
+        fig, ax = plt.subplots(figsize=(9, 4))
+        for i, name in enumerate(status[ss[0]].name):
+            ax.semilogy(t, np.clip(margins[:, i], 1e-7, None), lw=0.8, label=name)
+        for x, lab, c in ((fault, "fault", "k"), (stop, "safe stop", "r")):
+            if x is not None:
+                ax.axvline((x - t0) * 1e-9, color=c, ls="--", label=lab)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("monitor margin (bound - N y_a) [rad]")
+        ax.legend(fontsize=7, ncol=4)
+        fig.tight_layout()
+        p = outdir / "demo_monitor_margins.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(str(p))
+    return paths

@@ -1,0 +1,324 @@
+"""Combined synthesis and identification (paper eq. 10), its baselines and `reachset synthesize`.
+
+Simulated data: the per-joint plant of Appendix A in closed loop (HG observer + static
+feedback) with bounded disturbances and a smooth model error along the reference
+(:func:`reachset_ros.synthesis.simulate_recordings`); real solvers (HiGHS), small sizes and a
+reduced search (``SEARCH``) to keep the module fast.
+"""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from reachset_ros import cli
+from reachset_ros import conformance as cf
+from reachset_ros import model as mdl
+from reachset_ros import synthesis as sy
+from reachset_ros.closedloop import analyze, close_loop, simulate
+from reachset_ros.errors import InfeasibleError, ReachsetError
+from reachset_ros.estimators import Estimator
+from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.reachability import markov_parameters
+
+PLANT = lwa4p_joint_plant()
+JOINTS = ("arm_1_joint", "arm_2_joint", "arm_3_joint")
+TICKS = 4000
+SEARCH = {"sobol_log2": 4, "local_starts": 2, "local_maxfev": 40}
+LQG_R = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
+
+
+def run_cli(argv, capsys):
+    code = cli.main(list(map(str, argv)))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def recs():
+    return sy.simulate_recordings(JOINTS, TICKS, seed=3)
+
+
+@pytest.fixture(scope="module")
+def problems(recs):
+    series, refs = sy.recordings_series(recs)
+    return sy.problems_from_series(series, PLANT, Estimator("fd"), 125, 26.0, 2.0, refs, 3)
+
+
+@pytest.fixture(scope="module")
+def hg_results(problems):
+    space = sy.SearchSpace.from_config(sy.load_config(), "hg")
+    return sy.synthesize(problems, space, "combined", SEARCH, seed=0, lqg_r=LQG_R)
+
+
+@pytest.fixture(scope="module")
+def bag(recs, tmp_path_factory):
+    path = tmp_path_factory.mktemp("synth") / "sim"
+    sy.write_recordings(path, {n: recs[n] for n in JOINTS[:2]})
+    return path
+
+
+@pytest.fixture(scope="module")
+def small_config(tmp_path_factory):
+    p = tmp_path_factory.mktemp("cfg") / "synthesis.yaml"
+    p.write_text(yaml.safe_dump({"search": SEARCH}))
+    return p
+
+
+# ------------------------------------------------------------------ building blocks
+def test_lti_simulate_equals_the_tick_loop():
+    rng = np.random.default_rng(0)
+    A = 0.3 * rng.normal(size=(5, 5))
+    B, C, D = rng.normal(size=(5, 2)), rng.normal(size=(3, 5)), rng.normal(size=(3, 2))
+    r, z0 = rng.normal(size=(777, 2)), rng.normal(size=5)
+    got = sy.lti_simulate(A, B, C, D, r, z0, block=32)
+    z, ref = z0.copy(), []
+    for k in range(len(r)):
+        ref.append(C @ z + D @ r[k])
+        z = A @ z + B @ r[k]
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+
+
+def test_reference_loop_matches_the_tick_by_tick_nodes_code_path():
+    from reachset_ros.closedloop import simulate_ticks
+    rng = np.random.default_rng(1)
+    for g in (sy.DEFAULT_GAINS, {"observer": "eso", "controller": "compensated", "omega": 20, "zeta": 1,
+                                 "l1": 57.1, "l2": 103.3, "l3": 18.1, "eps": 0.01}):
+        obs, ctrl = sy.components_from_gains(g)
+        T = 2000
+        w = (rng.uniform(-1, 1, (T, 2)) * [0.03, 3.0]) @ PLANT.Gw.T
+        v = rng.uniform(-1, 1, (T, 1)) * 3.5e-5
+        zero = np.zeros(T)
+        out = sy.simulate_closed_loop(PLANT, obs, ctrl, zero, zero, zero, w, v, np.zeros(5),
+                                      np.zeros(obs.n_states))
+        ref = simulate_ticks(PLANT, obs, ctrl, w, v)
+        assert np.abs(out["x_hat"][:, :2] - ref[:, :2]).max() <= 1e-12
+        assert np.abs(out["u"][:, 0] - ref[:, 2]).max() <= 1e-11
+
+
+def test_reference_error_vanishes_for_a_constant_reference():
+    obs, ctrl = sy.components_from_gains(sy.DEFAULT_GAINS)
+    T = 500
+    ref = sy.Reference(np.arange(T), np.full(T, 0.7), np.zeros(T), np.zeros(T))
+    re = sy.reference_error(PLANT, obs, ctrl, [ref])
+    assert re.norm < 1e-9 and abs(re.u_lo) < 1e-6 and abs(re.u_hi) < 1e-6   # rounding only
+
+
+def test_alpha_polytope_keeps_the_identification_optimum(problems):
+    """The reduced Theorem-1 rows give the same min ||W|| + ||V|| as the full LP."""
+    pb = problems[0]
+    full = cf.identify(pb.plant, pb.thm, pb.devs, horizon=pb.horizon)
+    alpha, val = pb.polytope.minimize(cf.set_norm_cost(pb.plant))
+    assert len(pb.polytope.h) < pb.polytope.rows_total
+    assert val == pytest.approx(full.cost, rel=1e-6)
+    aw, av, _ = cf.make_sound(pb.plant, pb.thm, pb.devs, np.zeros(5), np.zeros(1), alpha[:2], alpha[2:])
+    assert cf.check(pb.plant, pb.thm, pb.estimator, cf.xi_of(np.zeros(5), np.zeros(1), aw, av),
+                    pb.y, pb.u, pb.segments, pb.horizon).violations == 0
+
+
+def test_shipped_config_equals_the_builtin_defaults():
+    path = sy.config_path()
+    assert path is not None
+    assert yaml.safe_load(path.read_text()) == sy.DEFAULT_CONFIG
+
+
+# ------------------------------------------------------------------ combined vs separate
+def test_combined_is_never_worse_than_separate_and_both_are_conformant_and_inside_up(hg_results, problems):
+    for pb in problems:
+        r = hg_results[pb.name]
+        s = r.separate
+        assert s is not None
+        assert r.re_norm <= s.re_norm + 1e-12
+        for res in (r, s):
+            assert res.ru_inside and -26.0 <= res.ru[0] and res.ru[1] <= 26.0
+            assert res.conformant and res.violations == 0
+            xi = cf.xi_of(res.c_w, res.c_v, res.alpha_w, res.alpha_v)
+            chk = cf.check(pb.plant, pb.thm, pb.estimator, xi, pb.y, pb.u, pb.segments, pb.horizon)
+            assert chk.violations == 0
+    # on these data the paper's finding holds: the separate identification puts everything
+    # into the velocity disturbance and is far worse for the closed loop
+    assert all(hg_results[n].re_norm < 0.7 * hg_results[n].separate.re_norm for n in JOINTS)
+
+
+def test_returned_gains_in_closed_loop_never_leave_re_or_ru(hg_results, problems, recs):
+    """Disturbances at the vertices of the identified W, V (random and adversarial), with the
+    recorded reference (method 3): [q_hat - q_d, qd_hat - qd_d] stays in R*_e, u_p in R*_u."""
+    rng = np.random.default_rng(11)
+    for pb in problems[:2]:
+        r = hg_results[pb.name]
+        obs, ctrl = sy.components_from_gains(r.gains())
+        cl = close_loop(PLANT, obs, ctrl)
+        an = analyze(cl, r.alpha_w, r.alpha_v)
+        rad = np.concatenate([an.re_radius, [an.ru[1]]])
+        # (a) error system: random vertices and the adversarial sign sequence
+        T, N = 3000, 64
+        bw = rng.choice([-1.0, 1.0], (T, N, 2)) * r.alpha_w
+        bv = rng.choice([-1.0, 1.0], (T, N, 1)) * r.alpha_v
+        out = simulate(cl, bw @ PLANT.Gw.T, bv @ PLANT.Gv.T)
+        assert np.all(np.abs(out) <= rad * (1 + 1e-9) + 1e-15)
+        T = 1200
+        E = np.hstack([cl.Ew * r.alpha_w, cl.Ev * r.alpha_v])
+        M = markov_parameters(cl.A, cl.C, E, T - 1)
+        betas = np.zeros((T, 3, 3))
+        for o in range(3):
+            betas[:T - 1, o] = np.sign(M[::-1, o, :])
+            betas[T - 1, o, 2:] = np.sign(cl.DEv[o] * r.alpha_v)
+        out = simulate(cl, (betas[..., :2] * r.alpha_w) @ PLANT.Gw.T, (betas[..., 2:] * r.alpha_v) @ PLANT.Gv.T)
+        assert np.all(np.abs(out) <= rad * (1 + 1e-9) + 1e-15)
+        worst = np.array([out[-1, o, o] for o in range(3)])
+        assert np.all(worst >= 0.95 * rad)                        # and the bound is nearly reached
+        # (b) the whole loop with the recorded reference: inside R*_e and R*_u
+        rec = recs[pb.name]
+        T = len(rec.q_d)
+        for trial in range(3):
+            w = (rng.choice([-1.0, 1.0], (T, 2)) * r.alpha_w) @ PLANT.Gw.T
+            v = (rng.choice([-1.0, 1.0], (T, 1)) * r.alpha_v) @ PLANT.Gv.T
+            sim = sy.simulate_closed_loop(PLANT, obs, ctrl, rec.q_d, rec.qd_d, rec.qdd_d, w, v)
+            e = sim["x_hat"][:, :2] - np.column_stack([rec.q_d, rec.qd_d])
+            assert np.all(np.abs(e - r.re_center) <= r.re_radius * (1 + 1e-9))
+            assert np.all(sim["u"][:, 0] >= r.ru[0]) and np.all(sim["u"][:, 0] <= r.ru[1])
+
+
+def test_infeasible_input_limit_names_the_binding_constraint(problems):
+    space = sy.SearchSpace.from_config(sy.load_config(), "hg")
+    pb = problems[0]
+    tight = sy.JointProblem.prepare(pb.name, pb.plant, pb.estimator, pb.y, pb.u, pb.segments, pb.horizon,
+                                    u_max=2.5, u_ff=2.0, thm=pb.thm)
+    with pytest.raises(InfeasibleError, match=r"no gains keep R_u inside U_p: smallest achievable R_u radius"):
+        sy.combined(tight, space, SEARCH)
+    with pytest.raises(ReachsetError, match="U_ff"):
+        sy.JointProblem.prepare(pb.name, pb.plant, pb.estimator, pb.y, pb.u, pb.segments, pb.horizon,
+                                u_max=26, u_ff=0.5, thm=pb.thm, references=pb.references)
+
+
+# ------------------------------------------------------------------ LQG, ESO, re-identification, iteration
+def test_lqg_moves_like_the_papers_table_iv(hg_results):
+    for n in JOINTS:
+        rows = hg_results[n].extra["lqg"]
+        assert [row["r"] for row in rows] == list(LQG_R)
+        assert all(row["stable"] for row in rows)
+        hi = [row["ru"][1] for row in rows]
+        lo = [row["ru"][0] for row in rows]
+        assert all(a > b for a, b in zip(hi, hi[1:])) and all(a < b for a, b in zip(lo, lo[1:]))  # R_u shrinks
+        re = [row["re_norm"] for row in rows]
+        big = [x for row, x in zip(rows, re) if row["r"] >= 1e-3]
+        assert all(a < b for a, b in zip(big, big[1:]))            # ||R_e|| grows for large r
+        assert rows[0]["ru_inside_up"] is False                    # tiny r violates U_p (paper: r = 1e-7)
+        feasible = [row["re_norm"] for row in rows if row["ru_inside_up"]]
+        assert hg_results[n].re_norm < min(feasible)               # ours beats every feasible LQG
+
+
+def test_eso_combined_beats_separate(problems):
+    space = sy.SearchSpace.from_config(sy.load_config(), "eso")
+    assert space.free == ("l1", "l2", "l3") and space.controller == "compensated"
+    res = sy.synthesize(problems[:1], space, "combined", SEARCH)[JOINTS[0]]
+    assert res.observer == "eso" and set(res.gains()) >= {"l1", "l2", "l3", "omega", "zeta", "eps"}
+    assert res.re_norm <= res.separate.re_norm and res.conformant and res.ru_inside
+
+
+def test_reidentify_keeps_the_controller(hg_results, problems):
+    pb = problems[1]
+    g = hg_results[pb.name].gains()
+    res = sy.reidentify(pb, g)
+    assert res.mode == "reidentify" and res.conformant
+    assert {k: res.gains()[k] for k in ("omega", "zeta", "h1", "h2")} == {k: g[k] for k in ("omega", "zeta", "h1", "h2")}
+    assert res.re_norm == pytest.approx(hg_results[pb.name].re_norm, rel=1e-6)
+
+
+def test_iterative_procedure_with_a_simulated_robot():
+    """Sec. III-D on the linear plant: synthesise, record with the new gains, synthesise again,
+    re-identify (records without references)."""
+    calls = []
+
+    def record(gains):
+        calls.append(gains)
+        recs = sy.simulate_recordings(["j"], 2500, seed=10 + len(calls), gains=gains)
+        return sy.recordings_series(recs)[0]
+
+    series = sy.recordings_series(sy.simulate_recordings(["j"], 2500, seed=10))[0]
+    space = sy.SearchSpace.from_config(sy.load_config(), "hg")
+    hist = sy.iterate(record, series, space, iterations=2, search=SEARCH)
+    assert [h["step"] for h in hist] == ["synthesis 1", "synthesis 2", "re-identification"]
+    assert len(calls) == 2 and calls[0]["j"]["omega"] == hist[0]["results"]["j"].params["omega"]
+    final = hist[-1]["results"]["j"]
+    assert final.conformant and final.ru_inside and final.mode == "reidentify"
+    assert final.params["omega"] == hist[1]["results"]["j"].params["omega"]
+
+
+def test_iterative_procedure_with_the_projects_simulated_arm():
+    """One iteration with the nonlinear simulated LWA-4P (model error, friction, delays) driven
+    by the nodes' control law; references recorded, so method 3 is active."""
+    joint = "arm_3_joint"
+
+    def record(gains, seed=[20]):
+        seed[0] += 1
+        recs = sy.simulate_arm_recordings(6.0, gains, seed=seed[0])
+        series, refs = sy.recordings_series({joint: recs[joint]})
+        return series, refs
+
+    space = sy.SearchSpace.from_config(sy.load_config(), "hg")
+    hist = sy.iterate(record, record(None), space, iterations=1, search=SEARCH, u_max=26.0)
+    first, final = hist[0]["results"][joint], hist[-1]["results"][joint]
+    assert first.reference["ticks"] > 0 and first.conformant and first.ru_inside
+    assert final.mode == "reidentify" and final.conformant and final.ru_inside
+
+
+# ------------------------------------------------------------------ command line
+def test_cli_synthesize_json_out_plots_and_check(bag, small_config, tmp_path, capsys):
+    out = tmp_path / "gains.yaml"
+    plots = tmp_path / "plots"
+    code, so, se = run_cli(["synthesize", bag, "--json", "--out", out, "--config", small_config,
+                            "--lqg-r", "1e-4", "1e-2", "--plot", plots], capsys)
+    assert code == 0, se
+    d = json.loads(so)
+    assert set(d["joints"]) == set(JOINTS[:2]) and d["mode"] == "combined" and d["observer"] == "hg"
+    for n, j in d["joints"].items():
+        for key in ("re_norm", "ru", "gains", "alpha_w", "alpha_v", "c_w", "c_v", "test_cases", "horizon",
+                    "separate", "lqg", "reference_error"):
+            assert key in j, key
+        assert j["re_norm"] <= j["separate"]["re_norm"] + 1e-12
+        assert j["gains"]["observer"] == "hg" and j["gains"]["u_max"] == 26.0
+        assert j["reference_error"]["ticks"] > 0          # the bag's /reference was used
+        assert len(j["lqg"]) == 2
+    assert {p.rsplit("/", 1)[-1] for p in d["plots"]} >= {f"{JOINTS[0]}_re.png", f"{JOINTS[0]}_ru.png",
+                                                            f"{JOINTS[0]}_conformance.png"}
+    m = mdl.load(out)
+    assert m.joints[JOINTS[0]].gains["omega"] == d["joints"][JOINTS[0]]["gains"]["omega"]
+    code, so, se = run_cli(["check", bag, "--model", out, "--json"], capsys)
+    assert code == 0, se
+    chk = json.loads(so)
+    assert chk["conformant"] and all(j["violations"] == 0 for j in chk["joints"].values())
+    # reidentify from the written model: same controller, conformant sets
+    out2 = tmp_path / "reid.yaml"
+    code, so, se = run_cli(["synthesize", bag, "--mode", "reidentify", "--model", out, "--json", "--out", out2],
+                           capsys)
+    assert code == 0, se
+    d2 = json.loads(so)
+    for n in JOINTS[:2]:
+        assert d2["joints"][n]["gains"]["omega"] == d["joints"][n]["gains"]["omega"]
+        assert d2["joints"][n]["conformant"]
+
+
+def test_cli_infeasible_u_max_exits_2_with_one_line_and_no_file(bag, small_config, tmp_path, capsys):
+    out = tmp_path / "never.yaml"
+    code, so, se = run_cli(["synthesize", bag, "--joints", JOINTS[0], "--u-max", "2.5", "--out", out,
+                            "--config", small_config], capsys)
+    assert code == 2
+    assert len(se.strip().splitlines()) == 1
+    assert "R_u inside U_p" in se and "u_max 2.5" in se
+    assert not out.exists() and not list(tmp_path.glob("never.yaml*"))
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--mode", "reidentify"], "--model"),
+    (["--controller", "compensated"], "eso"),
+    (["--free", "h9"], "h9"),
+    (["--u-max", "26", "26", "26"], "3 values for 2 joints"),
+    (["--fix", "omega"], "NAME=VALUE"),
+    (["--fix", "l1=3"], "'l1' is not a parameter of the hg loop"),
+    (["--seed", "-1"], "seed"),
+    (["--joints", "nope"], "nope"),
+])
+def test_cli_bad_input(bag, argv, msg, capsys):
+    code, so, se = run_cli(["synthesize", bag, *argv], capsys)
+    assert code == 2 and msg in se and len(se.strip().splitlines()) == 1
