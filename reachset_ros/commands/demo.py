@@ -32,11 +32,16 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated arm and the reference")
     p.add_argument("--fault", default="acceleration:arm_1_joint:30",
                    help="KIND:JOINT:MAGNITUDE (kinds: acceleration, torque, payload, bias, frozen, nan)")
+    p.add_argument("--margin", type=float, default=0.5,
+                   help="inflation of the identified sets used by the monitor (model 'inflation'): fewer "
+                        "false alarms on motions the training runs did not cover, slower detection")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args):
     from ..nodes.demo_driver import run_demo
+    if args.margin < 0:
+        raise ReachsetError("--margin must be >= 0")
     if args.duration <= 0 or args.train <= 0:
         raise ReachsetError("--duration and --train must be positive")
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="reachset_demo_"))
@@ -54,7 +59,8 @@ def run(args):
     t0 = time.monotonic()
     fault_at = args.inject_fault_at if args.inject_fault_at is not None and args.inject_fault_at >= 0 else None
     try:
-        res = run_demo(workdir, record, args.duration, fault_at, args.train, seed=args.seed, log=log, fault=fault)
+        res = run_demo(workdir, record, args.duration, fault_at, args.train, seed=args.seed, log=log, fault=fault,
+                       margin=args.margin)
     except RuntimeError as e:
         raise ReachsetError(f"demo: {e} (logs in {workdir})") from e
     summary = summarize(res, record, workdir)
@@ -98,6 +104,7 @@ def summarize(res, record, workdir):
         "status_messages": len(status), "status_rate_hz_until_stop": rate,
         "synthesis": res.get("synthesis"), "reidentify": res.get("reidentify"),
         "record": str(record), "early_stop": res.get("early_stop"),
+        "monitor_model": res.get("monitor_model"), "margin": res.get("margin"),
     }
     try:
         from ..plots import demo_plots

@@ -55,7 +55,7 @@ class DemoDriver(Node):
 
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
-             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None):
+             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None, margin=0.5):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
@@ -112,16 +112,22 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         rec, _ = record_phase("new gains", train, CORE_TOPICS, bag2)
         driver.spin_for(train)
         launch.stop([rec])
-        ok, why = set_remote_parameters(driver, "synthesis_node",
-                                        {"targets": ["controller_node", "observer_node", "monitor_node"]})
-        if not ok:
-            raise RuntimeError(f"synthesis node: {why}")
         log("[demo] synthesis node: second iteration, combined synthesis on both recordings")
         req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="combined", apply=True)
         res = driver.call(Synthesize, "/synthesis_node/synthesize", req)
         out["reidentify"] = _result_dict(res)
         if not res.success:
             raise RuntimeError(f"second synthesis iteration failed: {res.message}")
+        # the monitor gets the model with the demo's safety margin (inflation of the sets)
+        from .. import model as mdl
+        from dataclasses import replace
+        monitor_model = workdir / "monitor_model.yaml"
+        mdl.save(replace(mdl.load(res.result.model_file), inflation=float(margin)), monitor_model)
+        ok, why = set_remote_parameters(driver, "monitor_node", {"model_file": str(monitor_model)})
+        if not ok:
+            raise RuntimeError(f"monitor refused the model: {why}")
+        out["monitor_model"] = str(monitor_model)
+        out["margin"] = float(margin)
         # 4. monitored run, fault injected (the monitor starts fresh with the new model)
         reset = driver.call(Trigger, "/monitor_node/reset", Trigger.Request(), timeout=30.0)
         if not reset.success:

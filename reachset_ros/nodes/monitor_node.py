@@ -48,6 +48,8 @@ class MonitorCore:
         thm = Theorem1.build(model.plant, model.horizon)
         self.monitor = Monitor([MonitorModel.from_model(model, j, thm) for j in self.joints])
         self.pending = collections.OrderedDict()
+        # ticks waiting for their other half: a stalled controller may lag by many ticks
+        self.max_pending = 2 * (model.horizon + 1)
         self.last_stamp = None
         self.counters = collections.Counter()
         keep = model.horizon + model.estimator.history + 2
@@ -78,7 +80,7 @@ class MonitorCore:
                 del self.pending[s]
             del self.pending[stamp]
             events.append(self._process(stamp, entry["y"], entry["u"]))
-        while len(self.pending) > 8:
+        while len(self.pending) > self.max_pending:
             self.pending.popitem(last=False)
             self.counters["dropped_incomplete"] += 1
         return events
