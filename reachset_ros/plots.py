@@ -255,3 +255,34 @@ def demo_plots(res, record, workdir):
         plt.close(fig)
         paths.append(str(p))
     return paths
+
+
+def plot_deviations(directory, name, model, thm, devs):
+    """Theorem 1 as a picture: per k the largest and smallest measured deviation y_a over
+    all test cases of a recording against the reachable set R_a[k] of the model (one-dimensional
+    outputs). Returns the PNG path."""
+    plt = _plt()
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    offs = thm.offsets(model.joints[name].xi(model.inflation))
+    k = np.arange(len(offs))
+    hi = np.array([o[0][0] for o in offs])
+    lo = -np.array([o[1][0] for o in offs])
+    ymax = np.array([m[0] for m in devs.maxp])
+    ymin = -np.array([m[0] for m in devs.maxm])
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.fill_between(k, lo, hi, color="tab:blue", alpha=0.25, label="R_a[k] (model)")
+    ax.plot(k, ymax, color="tab:red", lw=1.2, label="max / min measured y_a over test cases")
+    ax.plot(k, ymin, color="tab:red", lw=1.2)
+    out = (ymax > hi) | (ymin < lo)
+    if out.any():
+        ax.plot(k[out], np.where(ymax[out] > hi[out], ymax[out], ymin[out]), "kx", label="outside")
+    ax.set_xlabel("k (ticks after the test case's start)")
+    ax.set_ylabel("y_a [rad]")
+    ax.set_title(f"{name}: {devs.test_cases} test cases", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = d / f"deviations_{name}.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return str(p)

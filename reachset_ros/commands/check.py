@@ -11,6 +11,8 @@ HELP = "check bags for reachset conformance against a model (batch, vectorised)"
 def add_arguments(p):
     add_bag_arguments(p)
     p.add_argument("--model", required=True, help="model YAML (identify/synthesize output)")
+    p.add_argument("--plot", metavar="DIR", help="write per joint a PNG of the measured deviations y_a "
+                                                  "(envelope over all test cases) against R_a[k]")
 
 
 def joint_result(stamps, res):
@@ -34,6 +36,10 @@ def run(args):
         joints[name] = joint_result(s.stamps, res)
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
               "data": report.as_dict()}
+    if args.plot:
+        from ..plots import plot_deviations
+        result["plots"] = [plot_deviations(args.plot, name, model, thm, cf.deviation_extremes(
+            model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)) for name, s in series.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
         + (f", first at {j['first_violation_ns']} ns" if j["first_violation_ns"] is not None else "")
