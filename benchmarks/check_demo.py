@@ -1,4 +1,7 @@
-"""`reachset demo` end to end: every node a separate process over DDS, the simulated arm,
+"""Acceptance check of the demo (not in `make test`: timing-sensitive, ~3 min).
+Run: .venv/bin/python -m pytest -q benchmarks/check_demo.py
+
+`reachset demo` end to end: every node a separate process over DDS, the simulated arm,
 synthesis applied live, a fault injected and caught (issue: node suite and demo)."""
 import json
 import subprocess
