@@ -28,7 +28,7 @@ sets fixed), :func:`lqg_baseline` (paper Table IV) and :func:`reidentify` (contr
 sets re-identified by the inner LP). :func:`iterate` is the paper's iterative procedure
 (Sec. III-D) around a user-given ``record(gains) -> bags`` callable.
 
-Reference error (paper Appendix B), :class:`ReferenceError`: method 3 (default) encloses
+Reference error (paper Appendix B), :class:`ReferenceErrorSets`: method 3 (default) encloses
 ``y_e,ref`` and ``u_e,ff`` of the nominal closed loop driven by every reference found in the
 bags (``/reference``) in boxes and adds them to ``R_e`` and ``R_u`` inside the optimisation;
 method 2 optimises ``R_e``/``R_u`` alone and checks ``R_u (+) u_e,ff`` for the recorded
@@ -55,11 +55,14 @@ from .closedloop import close_loop, radius_coefficients
 from .errors import InfeasibleError, ReachsetError
 from .reachability import NotStableError, spectral_radius_reachable
 
-__all__ = ["DEFAULT_CONFIG", "load_config", "SearchSpace", "components_from_gains", "Reference",
-           "read_references", "read_estimates", "LoopIO", "loop_io", "lti_simulate",
-           "simulate_closed_loop", "ReferenceError", "reference_error", "AlphaPolytope",
-           "JointProblem", "Evaluation", "Evaluator", "JointResult", "combined", "separate",
-           "reidentify", "lqg_baseline", "synthesize", "iterate", "PARAMS"]
+__all__ = ["DEFAULT_CONFIG", "load_config", "config_path", "u_max_for", "SearchSpace", "PARAMS",
+           "components_from_gains", "Reference", "read_references", "read_estimates", "LoopIO", "loop_io",
+           "LTIPlan", "lti_simulate", "simulate_closed_loop", "steady_state", "reference_windows",
+           "ReferenceErrorSets", "reference_error", "AlphaPolytope", "JointProblem", "problems_from_series",
+           "Evaluation", "Evaluator", "JointResult", "combined", "separate", "reidentify", "lqg_baseline",
+           "synthesize", "iterate", "BagSynthesis", "synthesize_bags", "Scenario", "Recording",
+           "DEFAULT_GAINS", "simulate_recordings", "simulate_arm_recordings", "recordings_series",
+           "write_recordings"]
 
 #: Parameters of each observer family (the controller adds omega, zeta).
 PARAMS = {"hg": ("omega", "zeta", "h1", "h2"), "eso": ("omega", "zeta", "l1", "l2", "l3")}
@@ -67,7 +70,7 @@ PARAMS = {"hg": ("omega", "zeta", "h1", "h2"), "eso": ("omega", "zeta", "l1", "l
 PENALTY = 1e6
 #: Relative margin kept from U_p in the LP so that the floating-point clean-up of alpha
 #: (:func:`reachset_ros.conformance.make_sound`) cannot push R_u outside U_p.
-U_MARGIN = 1e-7
+U_MARGIN = 1e-4  # relative slack of R_u inside U_p: absorbs the final outer-bound and soundness inflation
 REFERENCE_TOPIC = "/reference"
 ESTIMATE_TOPIC = "/observer/estimate"
 
@@ -631,7 +634,7 @@ def simulate_closed_loop(plant, observer, controller, q_d, qd_d, qdd_d, w=None, 
 
 
 @dataclass(frozen=True)
-class ReferenceError:
+class ReferenceErrorSets:
     """Enclosures of the reference error (paper Appendix B) over a set of references.
 
     ``e_lo``/``e_hi``: box of ``y_e,ref = x_hat_sel - x_ref_sel`` of the disturbance-free
@@ -668,7 +671,7 @@ class ReferenceError:
 
 
 def zero_reference_error(n=2):
-    return ReferenceError(np.zeros(n), np.zeros(n), 0.0, 0.0, 0.0, 0, 0)
+    return ReferenceErrorSets(np.zeros(n), np.zeros(n), 0.0, 0.0, 0.0, 0, 0)
 
 
 def _reference_inputs(names, q, qd, qdd):
@@ -769,7 +772,7 @@ def reference_error(plant, observer, controller, references, errors=("q", "qd"),
 
     Returns
     -------
-    ReferenceError
+    ReferenceErrorSets
     """
     if not references:
         return zero_reference_error(len(errors))
@@ -804,7 +807,7 @@ def reference_error(plant, observer, controller, references, errors=("q", "qd"),
         ticks += len(ref)
     if ticks == 0:
         return zero_reference_error(ne)
-    return ReferenceError(lo[1:], hi[1:], float(lo[0]), float(hi[0]), qmax, ticks, len(references),
+    return ReferenceErrorSets(lo[1:], hi[1:], float(lo[0]), float(hi[0]), qmax, ticks, len(references),
                           tuple(arg_lo[1:] + arg_hi[1:] + [arg_lo[0], arg_hi[0]]), exact)
 
 
@@ -981,7 +984,7 @@ class Evaluation:
     reason: str = ""
     Kw: np.ndarray = None
     Kv: np.ndarray = None
-    ref: ReferenceError = None
+    ref: ReferenceErrorSets = None
 
 
 class LoopData:
@@ -1820,7 +1823,6 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     XH = [np.empty((T, len(xn))) for xn in xnames]
     stamps = np.empty(T, np.int64)
     qh, qdh, u = np.zeros(n), np.zeros(n), np.zeros(n)
-    prev = [None] * n
     for k in range(T):
         stamps[k] = m.stamp_ns
         y = m.q_measured
@@ -1842,7 +1844,6 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     for j, nm in enumerate(names):
         out[nm] = Recording(stamps.copy(), Y[:, j].copy(), U[:, j].copy(), XH[j], xnames[j],
                             Qd[:, j].copy(), QDd[:, j].copy(), QDDd[:, j].copy())
-    del prev
     return out
 
 
