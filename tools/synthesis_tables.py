@@ -26,7 +26,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 PY = sys.executable
-LQG_R = ("1e-7", "1e-6", "1e-5", "1e-4", "1e-3", "1e-2", "1e-1")
+LQG_R = ("1e-7", "1e-6", "1e-5", "1e-4", "1e-3", "1e-2", "1e-1", "1", "10")
 ESO0 = {"observer": "eso", "controller": "compensated", "omega": 20.0, "zeta": 1.0, "l1": 57.1, "l2": 103.3,
         "l3": 18.1, "eps": 0.01}
 
