@@ -16,15 +16,14 @@ first and last ``trim`` samples of each run dropped.
 """
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import robot as rb
+from .atomic import write_yaml
 from .errors import ReachsetError
 
 DT = 0.004
@@ -279,22 +278,13 @@ def _runs_spec(runs) -> str:
 
 
 def write_yaml_atomic(path, doc: dict, header: str = "") -> None:
-    """Write ``doc`` as YAML to ``path`` via a temporary file and a rename."""
-    import yaml
+    """Write ``doc`` as YAML to a new file ``path`` atomically (:func:`reachset_ros.atomic.write_yaml`)."""
     path = Path(path)
     if path.exists():
         raise ReachsetError(f"{path}: output file already exists")
     if not path.parent.is_dir():
         raise ReachsetError(f"{path.parent}: output directory not found")
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(header)
-            yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None, width=100)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_yaml(path, doc, header, default_flow_style=None, width=100)
 
 
 def default_nominal_path() -> Path:

@@ -12,14 +12,13 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from .atomic import write_yaml
 from .errors import ReachsetError
 from .estimators import Estimator
 from .plant import LinearPlant, lwa4p_joint_plant
@@ -182,15 +181,7 @@ def save(model: ConformanceModel, path):
     p = Path(path)
     d = to_dict(model)
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".partial", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            yaml.safe_dump(d, f, sort_keys=False)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_yaml(p, d)
 
 
 def provenance(bags, command):

@@ -28,6 +28,13 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path):
+    """Lay out, write the PNG and free the figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _box(ax, center, radius, **kw):
     from matplotlib.patches import Rectangle
     c, r = np.asarray(center, float), np.asarray(radius, float)
@@ -98,9 +105,7 @@ def plot_tracking_error(path, result, errors=None, separate=None, lqg=None, titl
     ax.set_title(title or f"{result.name}: reachable tracking error")
     ax.legend(loc="upper right", fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
     return Path(path)
 
 
@@ -130,9 +135,7 @@ def plot_input(path, result, u=None, dt=0.004, separate=None, title=None):
     ax.set_title(title or f"{result.name}: reachable input")
     ax.legend(loc="upper right", fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
     return Path(path)
 
 
@@ -160,9 +163,7 @@ def plot_conformance(path, problem, result, separate=None, title=None):
     ax.set_title(title or f"{problem.name}: reachset conformance (Theorem 1)")
     ax.legend(loc="upper left", fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
     return Path(path)
 
 
@@ -230,10 +231,8 @@ def demo_plots(res, record, workdir):
             ax.set_xlim(-1.2 * r[0], 1.2 * r[0])
             ax.set_ylim(-1.2 * r[1], 1.2 * r[1])
         np.ravel(axes)[0].legend(fontsize=7, loc="upper right")
-        fig.tight_layout()
         p = outdir / "demo_tracking_error.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
+        _save(plt, fig, p)
         paths.append(str(p))
     if status:
         ss = sorted(status)
@@ -249,10 +248,8 @@ def demo_plots(res, record, workdir):
         ax.set_xlabel("time [s]")
         ax.set_ylabel("monitor margin (bound - N y_a) [rad]")
         ax.legend(fontsize=7, ncol=4)
-        fig.tight_layout()
         p = outdir / "demo_monitor_margins.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
+        _save(plt, fig, p)
         paths.append(str(p))
     return paths
 
@@ -281,8 +278,6 @@ def plot_deviations(directory, name, model, thm, devs):
     ax.set_ylabel("y_a [rad]")
     ax.set_title(f"{name}: {devs.test_cases} test cases", fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
     p = d / f"deviations_{name}.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, p)
     return str(p)

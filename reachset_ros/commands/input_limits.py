@@ -9,14 +9,13 @@ Table I (tau_max 160/160/160/160/40/40 N m, q_max 140/45/100/140/80/140 deg, qd_
 ``reachset synthesize --config FILE``.
 """
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .. import input_limits as il
 from .. import robot as rb
+from ..atomic import write_yaml
 from ..errors import ReachsetError
 from . import emit
 
@@ -60,22 +59,12 @@ def _vec(name, vals, n, scale=1.0, positive=True):
 
 
 def _write(path, d):
-    import yaml
     p = Path(path)
     if p.is_dir():
         raise ReachsetError(f"{p}: --out is a directory")
     if not p.parent.exists():
         raise ReachsetError(f"{p.parent}: output directory does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".partial", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write("# U_p = [-u_max, u_max] per joint from `reachset input-limits` (sound for the model below).\n")
-            yaml.safe_dump(d, f, sort_keys=False)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_yaml(p, d, "# U_p = [-u_max, u_max] per joint from `reachset input-limits` (sound for the model below).\n")
 
 
 def run(args):

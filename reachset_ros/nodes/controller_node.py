@@ -22,7 +22,7 @@ from ..gains import check_gains
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 
-DEFAULT_JOINTS = ["arm_1_joint", "arm_2_joint", "arm_3_joint", "arm_4_joint", "arm_5_joint", "arm_6_joint"]
+DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
 
 def braking_input(q, qd, q_hold, u_max, omega=8.0, zeta=1.0):
@@ -76,7 +76,6 @@ class ControllerNode(Node):
             if not ok:
                 raise ReachsetError(f"joint {j}: {why}")
         if model is None:
-            from ..gains import Gains  # stability only
             from .. import closedloop
             from ..plant import lwa4p_joint_plant
             for j, g in gains.items():

@@ -17,9 +17,10 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .. import launch
+from ..robot import JOINT_NAMES
 from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
 
-JOINTS = ["arm_1_joint", "arm_2_joint", "arm_3_joint", "arm_4_joint", "arm_5_joint", "arm_6_joint"]
+JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
 MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
 

@@ -12,6 +12,7 @@ from reachset_msgs.msg import JointEstimate, PlantInput
 from sensor_msgs.msg import JointState
 
 from ..errors import ReachsetError
+from ..robot import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 
@@ -19,8 +20,7 @@ from .gain_params import current_values, declare_gain_parameters, gains_from, pr
 class ObserverNode(Node):
     def __init__(self):
         super().__init__("observer_node")
-        self.declare_parameter("joints", ["arm_1_joint", "arm_2_joint", "arm_3_joint", "arm_4_joint",
-                                          "arm_5_joint", "arm_6_joint"], desc("joints, in this order"))
+        self.declare_parameter("joints", list(JOINT_NAMES), desc("joints, in this order"))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
