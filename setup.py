@@ -1,7 +1,7 @@
 """reachset_ros: ament_python package (colcon on Jazzy) and pip-installable (make test/demo)."""
 from glob import glob
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = "reachset_ros"
 
@@ -15,6 +15,11 @@ NODES = {
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
     "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
 }
+# The online monitor's tick (reachset_ros/monitor.py loads it with ctypes; numpy is the
+# fallback). No fused multiply-add: its results must equal numpy's bit for bit.
+TICK_KERNEL = Extension(f"{PACKAGE}._tick", [f"{PACKAGE}/_tick.c"],
+                        extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off", "-fno-fast-math"])
+
 SCRIPTS = ["reachset = reachset_ros.cli:main"] + [f"{k} = {v}" for k, v in NODES.items()]
 
 
@@ -28,6 +33,7 @@ setup(
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/config", glob("config/*")),
     ],
+    ext_modules=[TICK_KERNEL],
     install_requires=["setuptools"],
     zip_safe=False,
     maintainer="reachset_ros developers",

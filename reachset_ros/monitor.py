@@ -11,8 +11,12 @@ element-wise kernels), so ``reachset replay`` gives exactly ``reachset check``'s
 """
 from __future__ import annotations
 
+import ctypes
+import importlib.machinery
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -176,16 +180,31 @@ class Monitor:
     with the same element-wise kernels as :func:`reachset_ros.conformance.sweep`, hence
     verdicts equal ``reachset check``'s exactly.
 
+    Two implementations of one tick share this state: the compiled kernel
+    ``reachset_ros/_tick.c`` (per-joint LWA-4P plant with the ``fd`` estimator; built by
+    ``pip install``/colcon with ``-ffp-contract=off``) and :meth:`_tick_numpy` (any
+    plant and estimator). They perform the same floating-point operations in the same
+    order, so their results are bitwise equal (``test/test_monitor_kernel.py``).
+
     Syntax::
 
         mon = Monitor([MonitorModel.from_model(model, j) for j in joints])
         res = mon.tick(stamp_ns, y, u)      # y, u: shape (J,)
 
+    Parameters
+    ----------
+    models : sequence of MonitorModel
+    kernel : bool or None
+        None (default): the compiled kernel when it is built and applies, else numpy;
+        False: always numpy; True: the compiled kernel or ValueError.
+
     Each joint is reset on its own invalid sample; a stamp step outside [0.5, 1.5] dt
     resets all joints (a gap: test cases never span it).
     """
 
-    def __init__(self, models):
+    STATUS = ("ok", "violation", "invalid", "gap_reset")
+
+    def __init__(self, models, kernel=None):
         self.models = tuple(models)
         m0 = self.models[0]
         for m in self.models:
@@ -198,19 +217,28 @@ class Monitor:
         self.plant, self.estimator, self.horizon = m0.plant, m0.estimator, m0.horizon
         self.names = tuple(m.name for m in self.models)
         self.J, self.S = len(self.models), self.horizon + 1
-        self.dp = np.stack([m.dp_vec for m in self.models])   # (J, S) offsets per k
-        self.dm = np.stack([m.dm_vec for m in self.models])
-        self._jidx = np.repeat(np.arange(self.J), self.S).reshape(self.J, self.S)
+        self.dp = np.ascontiguousarray(np.stack([m.dp_vec for m in self.models]))   # (J, S) offsets per k
+        self.dm = np.ascontiguousarray(np.stack([m.dm_vec for m in self.models]))
+        applies = _tick_kernel_applies(self.plant, self.estimator, self.J)
+        if kernel and not applies:
+            raise ValueError("the compiled monitor kernel is not built or does not apply to this plant/estimator")
+        self.kernel = bool(applies if kernel is None else kernel and applies)
         self.reset()
 
+    @property
+    def X(self):
+        """Nominal states of all joints and slots, shape (n, J*(k*+1)), column = j*(k*+1) + slot."""
+        return self._Xbuf[self._cur[0]]
+
     def reset(self):
+        """Forget all test cases and samples (the reset service, a new model)."""
         p, H, J, S = self.plant, self.estimator.history, self.J, self.S
         n, N = p.A.shape[0], self.J * self.S
         self._planA, self._planB, self._planC = _plan(p.A), _plan(p.B), _plan(p.C)
         self._planD = _plan(p.D) if np.any(p.D) else None
         self._planN = _plan(self.models[0].normals[0])
-        self.X = np.zeros((n, N))
-        self._Xn = np.empty((n, N))
+        self._Xbuf = np.zeros((2, n, N))
+        self._cur = np.zeros(1, dtype=np.int64)
         self._BU = np.empty((p.B.shape[0], N))
         self._Y = np.empty((p.C.shape[0], N))
         self._DU = np.empty((p.C.shape[0], N))
@@ -224,13 +252,17 @@ class Monitor:
         self.y_hist = np.zeros((J, H + 1))
         self.u_hist = np.zeros((J, H + 1))
         self.in_segment = np.zeros(J, dtype=np.int64)
-        self.last_stamp = None
-        self.tick_index = -1
+        self._clock = np.array([-1, 0, 0], dtype=np.int64)   # tick index, last stamp, has last
+        if self.kernel:
+            self._kernel_setup()
 
-    def _drop(self, rows):
-        self.start[rows] = -1
-        self.active[rows] = False
-        self.in_segment[rows] = 0
+    @property
+    def tick_index(self):
+        return int(self._clock[0])
+
+    @property
+    def last_stamp(self):
+        return int(self._clock[1]) if self._clock[2] else None
 
     def tick(self, stamp_ns, y, u):
         """Check one tick; returns a dict of per-joint arrays.
@@ -238,18 +270,72 @@ class Monitor:
         Keys: ``status`` (list of ok | violation | invalid | gap_reset), ``margin`` (J,),
         ``checked`` (J,), ``step`` (J,), ``start_tick`` (J,), ``deviation`` (J,), ``bound`` (J,).
         """
+        if not self.kernel:
+            return self._tick_numpy(stamp_ns, y, u)
+        k = self._k
+        k["y"][:] = y
+        k["u"][:] = u
+        ok = _KERNEL.reachset_monitor_tick(k["ptr"], int(stamp_ns), k["mp_ptr"], k["mm_ptr"])
+        out = k["out"]
+        if ok:
+            status = list(self._all_ok)
+        else:
+            status = [self.STATUS[s] for s in out["status"].tolist()]
+        return {"status": status, "margin": out["margin"].copy(), "checked": out["checked"].copy(),
+                "step": out["step"].copy(), "start_tick": out["start_tick"].copy(),
+                "deviation": out["deviation"].copy(), "bound": out["bound"].copy()}
+
+    def _kernel_setup(self):
+        p, J, S = self.plant, self.J, self.S
+        N = J * S
+        f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)   # noqa: E731
+        k = {"A": f8(p.A), "B": f8(p.B), "C": f8(p.C), "D": f8(p.D), "y": np.zeros(J), "u": np.zeros(J),
+             "mp": np.empty(N), "mm": np.empty(N), "BUn": np.empty((p.A.shape[0], N)),
+             "act": self.active.view(np.uint8),
+             "out": {"margin": np.empty(J), "deviation": np.empty(J), "bound": np.empty(J),
+                     "checked": np.empty(J, np.int64), "step": np.empty(J, np.int64),
+                     "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8)}}
+        o = k["out"]
+        ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)   # noqa: E731
+        cl = self._clock
+        st = _TickState(
+            n=p.A.shape[0], J=J, S=S, H=self.estimator.history, dt=float(p.dt),
+            A=ptr(k["A"]), B=ptr(k["B"]), C=ptr(k["C"]), D=ptr(k["D"]), has_d=int(self._planD is not None),
+            N=float(self.models[0].normals[0][0, 0]), dp=ptr(self._dpf), dm=ptr(self._dmf),
+            X0=ptr(self._Xbuf[0]), X1=ptr(self._Xbuf[1]), cur=ptr(self._cur),
+            start=ptr(self.start), ages=ptr(self.ages), active=ptr(k["act"]),
+            y_hist=ptr(self.y_hist), u_hist=ptr(self.u_hist), in_segment=ptr(self.in_segment),
+            tick_index=ptr(cl[0:1]), last_stamp=ptr(cl[1:2]), has_last=ptr(cl[2:3]),
+            Y=ptr(self._Y), Ny=ptr(self._Ny), U=ptr(self._U), BU=ptr(k["BUn"]),
+            y_in=ptr(k["y"]), u_in=ptr(k["u"]),
+            margin=ptr(o["margin"]), deviation=ptr(o["deviation"]), bound=ptr(o["bound"]),
+            checked=ptr(o["checked"]), step=ptr(o["step"]), start_tick=ptr(o["start_tick"]),
+            status=ptr(o["status"]))
+        k["state"] = st
+        k["ptr"] = ctypes.cast(ctypes.pointer(st), ctypes.c_void_p)
+        k["mp_ptr"], k["mm_ptr"] = ptr(k["mp"]), ptr(k["mm"])
+        self._k = k
+        self._all_ok = ("ok",) * J
+
+    def _drop(self, rows):
+        self.start[rows] = -1
+        self.active[rows] = False
+        self.in_segment[rows] = 0
+
+    def _tick_numpy(self, stamp_ns, y, u):
+        """:meth:`tick` in numpy (any plant and estimator); the reference for the kernel."""
         p, H, S, J = self.plant, self.estimator.history, self.S, self.J
-        self.tick_index += 1
-        t = self.tick_index
+        self._clock[0] += 1
+        t = int(self._clock[0])
         y = np.asarray(y, dtype=np.float64).reshape(J)
         u = np.asarray(u, dtype=np.float64).reshape(J)
         gap = False
-        if self.last_stamp is not None:
-            step = (int(stamp_ns) - self.last_stamp) * 1e-9
+        if self._clock[2]:
+            step = (int(stamp_ns) - int(self._clock[1])) * 1e-9
             if not (0.5 * p.dt <= step <= 1.5 * p.dt):
                 gap = True
                 self._drop(slice(None))
-        self.last_stamp = int(stamp_ns)
+        self._clock[1], self._clock[2] = int(stamp_ns), 1
         valid = np.isfinite(y) & np.isfinite(u)
         all_valid = bool(valid.all())
         if not all_valid:
@@ -268,23 +354,24 @@ class Monitor:
         self.ages += 1
         self.active[:, slot] = False
         new = self.in_segment > H
+        X = self.X
         if new.all():
             x0 = self.estimator.estimate_latest(p, self.y_hist, self.u_hist)
-            self.X[:, slot::S] = x0
+            X[:, slot::S] = x0
             self.start[:, slot] = t
             self.ages[:, slot] = 0
             self.active[:, slot] = True
         elif new.any():
             js = np.flatnonzero(new)
             x0 = self.estimator.estimate_latest(p, self.y_hist[js], self.u_hist[js])
-            self.X[:, js * S + slot] = x0
+            X[:, js * S + slot] = x0
             self.start[js, slot] = t
             self.ages[js, slot] = 0
             self.active[js, slot] = True
         active = self.active
         U = self._U
         U.reshape(J, S)[:] = u[:, None]
-        Ystar = matvec_into(self._planC, self.X, self._Y)
+        Ystar = matvec_into(self._planC, X, self._Y)
         if self._planD is not None:
             Ystar += matvec_into(self._planD, U, self._DU)
         ya = np.repeat(y, S)[None, :] - Ystar
@@ -301,9 +388,9 @@ class Monitor:
         margin = np.where(use_p, vp, vm)
         checked = active.sum(axis=1)
         # advance all nominal states: X <- A X + B U (same arithmetic as conformance.advance)
-        Xn = matvec_into(self._planA, self.X, self._Xn)
+        Xn = matvec_into(self._planA, X, self._Xbuf[1 - self._cur[0]])
         Xn += matvec_into(self._planB, U, self._BU)
-        self.X, self._Xn = Xn, self.X
+        self._cur[0] = 1 - self._cur[0]
         if all_valid and not gap and margin.min() >= 0:
             status = ["ok"] * J
         else:
@@ -315,3 +402,42 @@ class Monitor:
                 "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
                 "deviation": np.where(has, np.where(use_p, Ny[r, col], -Ny[r, col]), 0.0),
                 "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0)}
+
+
+# ------------------------------------------------------------------ the compiled kernel
+class _TickState(ctypes.Structure):
+    """Mirror of ``tick_state`` in ``_tick.c`` (pointers into the Monitor's numpy arrays)."""
+
+    _fields_ = ([(f, ctypes.c_int64) for f in ("n", "J", "S", "H")] + [("dt", ctypes.c_double)]
+                + [(f, ctypes.c_void_p) for f in ("A", "B", "C", "D")] + [("has_d", ctypes.c_int64),
+                                                                         ("N", ctypes.c_double)]
+                + [(f, ctypes.c_void_p) for f in (
+                    "dp", "dm", "X0", "X1", "cur", "start", "ages", "active", "y_hist", "u_hist",
+                    "in_segment", "tick_index", "last_stamp", "has_last", "Y", "Ny", "U", "BU",
+                    "y_in", "u_in", "margin", "deviation", "bound", "checked", "step", "start_tick",
+                    "status")])
+
+
+def _load_kernel():
+    if os.environ.get("REACHSET_NO_KERNEL"):
+        return None, None
+    here = Path(__file__).resolve().parent
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = here / f"_tick{suffix}"
+        if path.exists():
+            lib = ctypes.CDLL(str(path))
+            fn = lib.reachset_monitor_tick
+            fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
+            fn.restype = ctypes.c_int64
+            return lib, str(path)
+    return None, None
+
+
+_KERNEL, KERNEL_PATH = _load_kernel()
+
+
+def _tick_kernel_applies(plant, estimator, joints):
+    """The compiled kernel covers the per-joint LWA-4P plant (5 states, 1 in, 1 out) with ``fd``."""
+    return (_KERNEL is not None and estimator.name == "fd" and plant.A.shape == (5, 5)
+            and plant.B.shape == (5, 1) and plant.C.shape == (1, 5) and plant.D.shape == (1, 1)
+            and 0 < joints <= 64)

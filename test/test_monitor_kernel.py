@@ -1,0 +1,118 @@
+"""The compiled monitor tick (reachset_ros/_tick.c) equals the numpy tick bit for bit."""
+import numpy as np
+import pytest
+
+from reachset_ros import conformance as cf
+from reachset_ros import monitor as mon_mod
+from reachset_ros.estimators import Estimator
+from reachset_ros.model import ConformanceModel, JointSets
+from reachset_ros.monitor import Monitor, MonitorModel
+from reachset_ros.plant import LinearPlant, lwa4p_joint_plant
+
+T0 = 1_700_000_000_000_000_000
+DT_NS = 4_000_000
+
+needs_kernel = pytest.mark.skipif(mon_mod.KERNEL_PATH is None, reason="compiled kernel not built")
+
+
+def closed_loop(p, T, J, seed):
+    rng = np.random.default_rng(seed)
+    Y, U, X = np.zeros((T, J)), np.zeros((T, J)), np.zeros((J, 5))
+    for k in range(T):
+        Y[k] = X[:, 0] + 2e-5 * rng.uniform(-1, 1, J)
+        U[k] = np.sin(0.003 * k + np.arange(J)) - 100 * X[:, 1] - 20 * X[:, 2]
+        X = X @ p.A.T + np.outer(U[k], p.B[:, 0]) + (p.Gw @ (np.array([[0.03], [3.0]]) * rng.uniform(-1, 1, (2, J)))).T
+    return Y, U
+
+
+def model_for(p, Y, U, K, scale=1.0):
+    thm = cf.Theorem1.build(p, K)
+    joints = {}
+    for j in range(Y.shape[1]):
+        s = cf.identify(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, len(Y)),), K, thm))
+        joints[f"j{j}"] = JointSets(tuple(scale * s.alpha_w), tuple(scale * s.alpha_v), tuple(s.c_w), tuple(s.c_v))
+    return ConformanceModel(p, {"kind": "lwa4p_joint", "dt": p.dt}, Estimator(), K, joints), thm
+
+
+def messy_stream(Y, U, seed):
+    """Stamps with gaps and a backwards step, NaN/inf samples in single joints and in all, a fault."""
+    rng = np.random.default_rng(seed)
+    T, J = Y.shape
+    Y, U = Y.copy(), U.copy()
+    stamps = T0 + DT_NS * np.arange(T, dtype=np.int64)
+    stamps[300:] += 3 * DT_NS                      # a gap
+    stamps[700:] -= 2 * DT_NS                      # a step backwards (also a gap)
+    stamps[900:] += 1_000_000                      # 1.25 dt step: no gap
+    for t in rng.choice(np.arange(50, T), 12, replace=False):
+        Y[t, rng.integers(J)] = rng.choice([np.nan, np.inf, -np.inf])
+    U[450, :] = np.nan
+    U[1200, 2] = np.inf
+    Y[1500:, 1] += 0.5 * 1e-4 * np.arange(T - 1500) ** 2 * 1e-2   # an acceleration fault on joint 1
+    return stamps, Y, U
+
+
+@needs_kernel
+@pytest.mark.parametrize("plant_kind", ["lwa4p", "with_feedthrough"])
+def test_kernel_equals_numpy_bit_for_bit(plant_kind):
+    p = lwa4p_joint_plant()
+    if plant_kind == "with_feedthrough":   # exercise the D-term, a non-unit normal is covered by N = 1 only
+        p = LinearPlant(p.A, p.B, p.C, np.array([[0.25 * p.dt ** 2]]), p.Gw, p.Gv, p.dt)
+    Y, U = closed_loop(p, 2200, 6, seed=1)
+    model, thm = model_for(p, Y[:1000], U[:1000], K=40, scale=1.02)
+    mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(6)]
+    a, b = Monitor(mms, kernel=True), Monitor(mms, kernel=False)
+    assert a.kernel and not b.kernel
+    stamps, Ys, Us = messy_stream(Y, U, seed=2)
+    seen = set()
+    for t in range(len(stamps)):
+        ra, rb = a.tick(int(stamps[t]), Ys[t], Us[t]), b.tick(int(stamps[t]), Ys[t], Us[t])
+        assert ra["status"] == rb["status"], t
+        seen.update(ra["status"])
+        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound"):
+            assert ra[key].tobytes() == rb[key].tobytes(), (t, key, ra[key], rb[key])
+        if t % 97 == 0 or t == len(stamps) - 1:
+            assert a.X.tobytes() == b.X.tobytes()
+            for f in ("start", "ages", "active", "y_hist", "u_hist", "in_segment"):
+                assert getattr(a, f).tobytes() == getattr(b, f).tobytes(), (t, f)
+            assert (a.tick_index, a.last_stamp) == (b.tick_index, b.last_stamp)
+    assert seen == {"ok", "violation", "invalid", "gap_reset"}
+
+
+@needs_kernel
+def test_kernel_verdicts_equal_the_batch_check():
+    p = lwa4p_joint_plant()
+    Y, U = closed_loop(p, 3000, 3, seed=4)
+    model, thm = model_for(p, Y[:2000], U[:2000], K=60)
+    Y = Y.copy()
+    Y[2400:, 0] += 2e-4 * np.arange(600) ** 2 * 4e-3      # fault on joint 0
+    mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(3)]
+    m = Monitor(mms, kernel=True)
+    first = [None] * 3
+    viol = np.zeros(3, int)
+    for t in range(len(Y)):
+        r = m.tick(T0 + DT_NS * t, Y[t], U[t])
+        for j, s in enumerate(r["status"]):
+            if s == "violation":
+                viol[j] += 1
+                first[j] = t if first[j] is None else first[j]
+    for j in range(3):
+        res = cf.check(p, thm, Estimator(), model.joints[f"j{j}"].xi(model.inflation), Y[:, j], U[:, j],
+                       ((0, len(Y)),), 60)
+        assert res.violations == viol[j]
+        assert res.first_violation_tick == (-1 if first[j] is None else first[j])
+    assert viol[0] > 0
+
+
+def test_numpy_fallback_when_the_kernel_does_not_apply():
+    """A plant the kernel does not cover (two states) runs the numpy tick; kernel=True refuses it."""
+    A = np.array([[1.0, 0.004], [0.0, 1.0]])
+    p = LinearPlant(A, np.array([[0.0], [0.004]]), np.array([[1.0, 0.0]]), np.zeros((1, 1)),
+                    np.eye(2), np.eye(1), 0.004)
+    js = {"j": JointSets((0.01, 0.01), (1e-4,), (0.0, 0.0), (0.0,))}
+    model = ConformanceModel(p, {"kind": "matrices", "dt": 0.004}, Estimator("output"), 10, js)
+    mm = MonitorModel.from_model(model, "j")
+    assert not Monitor([mm]).kernel
+    with pytest.raises(ValueError):
+        Monitor([mm], kernel=True)
+    r = Monitor([mm]).tick(T0, [0.0], [0.0])
+    assert r["status"] == ["ok"] and r["checked"][0] == 1
