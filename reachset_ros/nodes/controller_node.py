@@ -7,9 +7,12 @@ stamp. Gains change only through the parameter services, atomically between tick
 change is refused with its reason when the closed loop would be unstable or its reachable
 input would leave U_p under the current model (``model_file``). On an active
 ``/safe_stop`` it switches to a braking law that brings the joints to rest within U_p and
-holds them; only a cleared stop gives control back.
+holds them; only a cleared stop gives control back. An estimate it cannot use (a joint
+missing, short arrays, non-finite values) is skipped; a reference it cannot use is
+treated as none (hold the measured position); both are counted on ``/diagnostics``.
 """
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from reachset_msgs.msg import JointEstimate, JointReference, PlantInput, SafeStop
@@ -29,6 +32,29 @@ def braking_input(q, qd, q_hold, u_max, omega=8.0, zeta=1.0):
     """Braking law: a PD on the hold position, saturated to U_p (rad/s^2)."""
     u = omega ** 2 * (q_hold - q) - 2 * zeta * omega * qd
     return np.clip(u, -u_max, u_max)
+
+
+def hold_position(q, qd, u_max):
+    """Where the braking law holds the joints: the stopping point at half the admissible
+    deceleration, q + qd |qd| / u_max."""
+    return q + qd * np.abs(qd) / (2 * 0.5 * u_max)
+
+
+def u_max_array(value, n):
+    """U_p half-widths for ``n`` joints from the ``u_max`` parameter (one value for all, or
+    at least ``n``: the first ``n`` are used); each finite and > 0, else ReachsetError."""
+    try:
+        a = np.array([float(x) for x in value], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ReachsetError(f"u_max must be numbers, got {value!r}") from None
+    if a.size == 1:
+        a = np.full(n, a[0])
+    if a.size < n:
+        raise ReachsetError(f"u_max needs 1 or {n} values, got {a.size}")
+    a = a[:n]
+    if not np.all(np.isfinite(a)) or np.any(a <= 0):
+        raise ReachsetError(f"u_max must be finite and > 0 rad/s^2, got {a.tolist()}")
+    return a
 
 
 class ControllerNode(Node):
@@ -52,45 +78,64 @@ class ControllerNode(Node):
         if path:
             self.model = mdl.load(path)
         self.gains = gains_from(current_values(self), self.joints)
+        self.u_max = u_max_array(self.get_parameter("u_max").value, len(self.joints))
         self.refs = {}
         self.stop_active = False
         self.q_hold = None
-        self.counters = {"no_reference": 0, "bad_estimate": 0, "braking_ticks": 0}
+        self.counters = {"no_reference": 0, "bad_reference": 0, "bad_estimate": 0, "braking_ticks": 0}
         self.effort_pub = self.create_publisher(Float64MultiArray, "effort_commands", TICK_QOS)
         self.input_pub = self.create_publisher(PlantInput, "plant_input", TICK_QOS)
         self.create_subscription(JointEstimate, "observer/estimate", self.on_estimate, TICK_QOS)
         self.create_subscription(JointReference, "reference", self.on_reference, TICK_QOS)
         self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.on_set_parameters)
+
+    def publish_diagnostics(self):
+        """About 1 Hz: braking or not, and the counts of skipped inputs."""
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        st = DiagnosticStatus(name="reachset_ros: controller", hardware_id="")
+        if self.stop_active:
+            st.level, st.message = DiagnosticStatus.ERROR, "safe stop: braking and holding"
+        else:
+            st.level, st.message = DiagnosticStatus.OK, "tracking"
+        counts = dict(self.counters, callback_errors=getattr(self, "callback_errors", 0))
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counts.items())]
+        arr.status = [st]
+        self.diag_pub.publish(arr)
 
     # -- gains ---------------------------------------------------------------------------
     def validate(self, values, model):
+        """Gains and U_p of a proposed configuration, or ReachsetError with the reason: every
+        joint's closed loop must be stable, and where the model has the joint's sets its R_u
+        must stay inside U_p."""
         gains = gains_from(values, self.joints)
-        u_max = list(values.get("u_max", self.get_parameter("u_max").value))
+        u_max = u_max_array(values.get("u_max", self.get_parameter("u_max").value), len(self.joints))
+        u_ff = float(values.get("u_ff_bound", self.get_parameter("u_ff_bound").value))
+        from .. import closedloop
+        from ..plant import lwa4p_joint_plant
         for i, j in enumerate(self.joints):
             js = model.joints.get(j) if model is not None else None
-            if js is None:
+            if js is not None:
+                ok, why, _ = check_gains(gains[j], js, float(u_max[i]), u_ff, model.plant)
+                if not ok:
+                    raise ReachsetError(f"joint {j}: {why}")
                 continue
-            ok, why, _ = check_gains(gains[j], js, float(u_max[i]), float(self.get_parameter("u_ff_bound").value),
-                                     model.plant)
-            if not ok:
-                raise ReachsetError(f"joint {j}: {why}")
-        if model is None:
-            from .. import closedloop
-            from ..plant import lwa4p_joint_plant
-            for j, g in gains.items():
-                cl = closedloop.close_loop(lwa4p_joint_plant(), g.build_observer(), g.build_controller())
-                st = closedloop.stability(cl)
-                if not st.stable:
-                    raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
-        return gains
+            g = gains[j]
+            cl = closedloop.close_loop(lwa4p_joint_plant(), g.build_observer(), g.build_controller())
+            st = closedloop.stability(cl)
+            if not st.stable:
+                raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
+        return gains, u_max
 
     def on_set_parameters(self, params):
         values = proposed_values(self, params)
         model = self.model
         for p in params:
-            if p.name == "u_max":
-                values["u_max"] = p.value
+            if p.name in ("u_max", "u_ff_bound"):
+                values[p.name] = p.value
             if p.name == "model_file":
                 try:
                     model = mdl.load(p.value) if p.value else None
@@ -99,10 +144,10 @@ class ControllerNode(Node):
             if p.name in ("joints", "robot_params"):
                 return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
         try:
-            gains = self.validate(values, model)
+            gains, u_max = self.validate(values, model)
         except ReachsetError as e:
             return SetParametersResult(successful=False, reason=str(e))
-        self.gains, self.model = gains, model
+        self.gains, self.model, self.u_max = gains, model, u_max
         return SetParametersResult(successful=True)
 
     # -- data ----------------------------------------------------------------------------
@@ -116,35 +161,53 @@ class ControllerNode(Node):
         if not self.stop_active:
             self.q_hold = None
 
+    def reference_at(self, stamp):
+        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``, or None when there is none or
+        it lacks a joint, has short arrays or non-finite values (counted: ``bad_reference``)."""
+        ref = self.refs.pop(stamp, None)
+        if ref is None:
+            self.counters["no_reference"] += 1
+            return None
+        ridx = {n: i for i, n in enumerate(ref.name)}
+        n = len(ref.name)
+        if (any(j not in ridx for j in self.joints) or len(ref.position) < n or len(ref.velocity) < n
+                or len(ref.acceleration) < n):
+            self.counters["bad_reference"] += 1
+            return None
+        sel = [ridx[j] for j in self.joints]
+        out = tuple(np.array([arr[i] for i in sel], dtype=np.float64)
+                    for arr in (ref.position, ref.velocity, ref.acceleration))
+        if not all(np.all(np.isfinite(a)) for a in out):
+            self.counters["bad_reference"] += 1
+            return None
+        return out
+
     def on_estimate(self, msg):
         stamp = stamp_ns(msg.header.stamp)
         idx = {n: i for i, n in enumerate(msg.name)}
-        if any(j not in idx for j in self.joints):
+        n = len(msg.name)
+        if any(j not in idx for j in self.joints) or len(msg.position) < n or len(msg.velocity) < n:
             self.counters["bad_estimate"] += 1
             return
         sel = [idx[j] for j in self.joints]
-        q = np.array([msg.position[i] for i in sel])
-        qd = np.array([msg.velocity[i] for i in sel])
-        d = np.array([msg.disturbance[i] if i < len(msg.disturbance) else 0.0 for i in sel])
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+        q = np.array([msg.position[i] for i in sel], dtype=np.float64)
+        qd = np.array([msg.velocity[i] for i in sel], dtype=np.float64)
+        d = np.array([msg.disturbance[i] if i < len(msg.disturbance) else 0.0 for i in sel], dtype=np.float64)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(d))):
             self.counters["bad_estimate"] += 1
             return
-        u_max = np.array(self.get_parameter("u_max").value, dtype=float)[:len(self.joints)]
+        u_max = self.u_max
         if self.stop_active:
             self.counters["braking_ticks"] += 1
             if self.q_hold is None:
-                self.q_hold = q + qd * np.abs(qd) / (2 * 0.5 * u_max)
+                self.q_hold = hold_position(q, qd, u_max)
             u = braking_input(q, qd, self.q_hold, u_max)
         else:
-            ref = self.refs.pop(stamp, None)
+            ref = self.reference_at(stamp)
             if ref is None:
-                self.counters["no_reference"] += 1
                 qd_ref, qdot_ref, qdd_ref = q.copy(), np.zeros_like(q), np.zeros_like(q)
             else:
-                ridx = {n: i for i, n in enumerate(ref.name)}
-                qd_ref = np.array([ref.position[ridx[j]] for j in self.joints])
-                qdot_ref = np.array([ref.velocity[ridx[j]] for j in self.joints])
-                qdd_ref = np.array([ref.acceleration[ridx[j]] for j in self.joints])
+                qd_ref, qdot_ref, qdd_ref = ref
             u = np.empty(len(self.joints))
             for i, j in enumerate(self.joints):
                 g = self.gains[j]

@@ -4,10 +4,13 @@ Pairs ``/joint_states`` (y = position) and ``/plant_input`` (u_p) by header stam
 name, feeds :class:`reachset_ros.monitor.Monitor` one tick at a time, publishes
 ``/conformance/status`` every tick and ``/diagnostics`` at about 1 Hz. On the first
 violation, or on a fault (missing data for more than ``max_missing_ticks`` ticks, an
-invalid sample, a joint-name mismatch), it publishes a latched ``/safe_stop`` (reliable,
-transient local) and writes the offending window (the last k* + history ticks) to a bag.
-Only the ``~/reset`` service (std_srvs/Trigger) clears the stop. The model (sets, horizon,
-estimator) comes from ``model_file`` and can be swapped through the parameter service.
+invalid sample, a joint-name mismatch, a stamp going backwards), it publishes a latched
+``/safe_stop`` (reliable, transient local) and writes the offending window (the last
+k* + history ticks) to a bag. Only the ``~/reset`` service (std_srvs/Trigger) clears the
+stop. The model (sets, horizon, estimator) comes from ``model_file`` and can be swapped
+through the parameter service; a refused change leaves the running model as it was.
+Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
+``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from reachset_msgs.msg import ConformanceStatus, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -29,7 +33,15 @@ from ..bags import BagWriter, joint_state, plant_input
 from ..conformance import Theorem1
 from ..errors import ReachsetError
 from ..monitor import Monitor, MonitorModel
-from .common import SAFE_STOP_QOS, STATUS_QOS, TICK_QOS, desc, spin_node, stamp_ns, to_stamp
+from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
+
+#: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
+#: burst or a stalled executor costs latency, not ticks (samples wait in the DDS reader).
+INPUT_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+
+
+TOPIC = {"y": "/joint_states", "u": "/plant_input"}
 
 
 class MonitorCore:
@@ -37,39 +49,91 @@ class MonitorCore:
 
     ``add_y``/``add_u`` take (stamp, names, values); completed ticks are processed in stamp
     order and returned as events: ("tick", stamp, result) or ("fault", stamp, kind, reason, joint).
+
+    What each kind of bad input becomes (docs/reliability.md, "Nodes"):
+
+    * a message lacking a monitored joint, or naming one twice: fault ``name_mismatch``;
+      names that are not monitored are ignored (counted in ``extra_names_y|u``);
+    * a message whose value array is not as long as its name array: fault ``invalid_sample``;
+      a non-finite value of a monitored joint (the monitor's ``invalid`` status): the same;
+    * a stamp lower than the previous one on the same topic (the source's clock went back, or
+      two publishers share the topic): fault ``stamp_backwards``; an equal stamp (a repeated
+      message) is skipped and counted (``duplicate_y|u``), as is a message for a tick that
+      was already processed (``stale_y|u``);
+    * a tick whose other half never comes: dropped when a later tick completes or when more
+      than ``max_pending`` ticks wait (``dropped_incomplete``); missing ticks end the test
+      cases (as ``reachset check`` never lets a test case span a gap): ``gaps`` counts the
+      gaps and ``missing_ticks`` the ticks missing in them. Long silence is the node's
+      watchdog's business.
     """
 
     def __init__(self, model: mdl.ConformanceModel, joints=None):
         self.model = model
         self.joints = list(joints or model.joints)
+        if len(set(self.joints)) != len(self.joints):
+            raise ReachsetError(f"joints {self.joints} name a joint twice")
         missing = [j for j in self.joints if j not in model.joints]
         if missing:
             raise ReachsetError(f"joint {missing[0]} is not in the model")
         thm = Theorem1.build(model.plant, model.horizon)
         self.monitor = Monitor([MonitorModel.from_model(model, j, thm) for j in self.joints])
+        self.wanted = set(self.joints)
+        self.dt_ns = int(round(model.plant.dt * 1e9))
         self.pending = collections.OrderedDict()
         # ticks waiting for their other half: a stalled controller may lag by many ticks
         self.max_pending = 2 * (model.horizon + 1)
         self.last_stamp = None
+        self.topic_last = {}
         self.counters = collections.Counter()
         keep = model.horizon + model.estimator.history + 2
         self.window = collections.deque(maxlen=keep)
 
-    def _pick(self, names, values, what, stamp):
-        idx = {n: i for i, n in enumerate(names)}
+    def reset(self):
+        """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
+        self.monitor.reset()
+        self.pending.clear()
+        self.last_stamp = None
+        self.topic_last.clear()
+
+    def add_y(self, stamp, names, values):
+        return self.add("y", stamp, names, values)
+
+    def add_u(self, stamp, names, values):
+        return self.add("u", stamp, names, values)
+
+    def _pick(self, kind, names, values, stamp):
+        what = TOPIC[kind]
+        if len(values) != len(names):
+            return None, ("invalid_sample", f"{what} at {stamp} ns has {len(names)} names but {len(values)} values", "")
+        idx = {}
+        for i, n in enumerate(names):
+            if n in idx and n in self.wanted:
+                return None, ("name_mismatch", f"{what} at {stamp} ns names joint {n} twice", n)
+            idx[n] = i
         missing = [j for j in self.joints if j not in idx]
-        if missing or len(values) < len(names):
-            return None, ("name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0] if missing else '?'}",
-                          missing[0] if missing else "")
+        if missing:
+            return None, ("name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0]}", missing[0])
+        if len(idx) > len(self.joints):
+            self.counters["extra_names_" + kind] += 1
         return np.array([values[idx[j]] for j in self.joints], dtype=np.float64), None
 
     def add(self, kind, stamp, names, values):
         events = []
+        last = self.topic_last.get(kind)
+        self.topic_last[kind] = stamp   # after a jump back, the new clock is the reference
+        if last is not None and stamp < last:
+            self.counters["stamp_backwards_" + kind] += 1
+            return [("fault", stamp, "stamp_backwards",
+                     f"{TOPIC[kind]} stamp went backwards: {stamp} ns after {last} ns", "")]
+        if last is not None and stamp == last:
+            self.counters["duplicate_" + kind] += 1
+            return events
         if self.last_stamp is not None and stamp <= self.last_stamp:
             self.counters["stale_" + kind] += 1
             return events
-        vals, err = self._pick(names, values, "/joint_states" if kind == "y" else "/plant_input", stamp)
+        vals, err = self._pick(kind, names, values, stamp)
         if err:
+            self.counters["rejected_" + kind] += 1
             return [("fault", stamp) + err]
         entry = self.pending.setdefault(stamp, {})
         entry[kind] = vals
@@ -81,11 +145,18 @@ class MonitorCore:
             del self.pending[stamp]
             events.append(self._process(stamp, entry["y"], entry["u"]))
         while len(self.pending) > self.max_pending:
-            self.pending.popitem(last=False)
+            # the oldest stamp goes (not the oldest arrival: a late half of an old tick must
+            # not push out a newer tick that can still be completed)
+            del self.pending[min(self.pending)]
             self.counters["dropped_incomplete"] += 1
         return events
 
     def _process(self, stamp, y, u):
+        if self.last_stamp is not None:
+            step = stamp - self.last_stamp
+            if not (0.5 * self.dt_ns <= step <= 1.5 * self.dt_ns):   # the monitor's gap rule
+                self.counters["gaps"] += 1
+                self.counters["missing_ticks"] += max(0, int(round(step / self.dt_ns)) - 1)
         self.last_stamp = stamp
         self.window.append((stamp, y, u))
         t0 = time.perf_counter()
@@ -94,6 +165,7 @@ class MonitorCore:
         self.counters["ticks"] += 1
         bad = [j for j, s in enumerate(res["status"]) if s == "invalid"]
         if bad:
+            self.counters["invalid_ticks"] += 1
             j = self.joints[bad[0]]
             return ("fault", stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)
         return ("tick", stamp, res)
@@ -114,11 +186,15 @@ class MonitorNode(Node):
         self.stop_active = False
         self.stop_msg = None
         self.last_tick_wall = None
+        self.last_rx_wall = {}        # topic kind ("y", "u") -> wall time of its last message
+        self.first_rx_wall = None     # first message since the model was loaded or the stop reset
+        self.counters = collections.Counter()   # node-level: messages ignored without a model
+        self.model_id = ""
         self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", STATUS_QOS)
         self.stop_pub = self.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
-        self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
+        self.create_subscription(JointState, "joint_states", self.on_joint_states, INPUT_QOS)
+        self.create_subscription(PlantInput, "plant_input", self.on_plant_input, INPUT_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
@@ -128,44 +204,66 @@ class MonitorNode(Node):
             ok, why = self.load(path)
             if not ok:
                 self.get_logger().error(why)
-        self.model_id = ""
 
     # -- configuration ------------------------------------------------------------------
-    def load(self, path, joints=None):
+    def build(self, path, joints=None):
+        """A new :class:`MonitorCore` for ``path`` (not applied); ``(core, model_id, reason)``."""
         try:
             model = mdl.load(path)
             joints = joints if joints is not None else [j for j in self.get_parameter("joints").value if j]
             core = MonitorCore(model, joints or None)
-        except ReachsetError as e:
-            return False, str(e)
+            model_id = mdl.file_sha256(path)[:12]
+        except (ReachsetError, OSError) as e:
+            return None, "", str(e)
+        return core, model_id, ""
+
+    def apply(self, core, model_id, path):
         self.core = core
-        self.model_id = mdl.file_sha256(path)[:12]
+        self.model_id = model_id
         self.last_tick_wall = None
-        self.get_logger().info(f"monitoring joints {core.joints} with model {path} (k*={model.horizon})")
+        self.last_rx_wall.clear()
+        self.first_rx_wall = None
+        self.get_logger().info(f"monitoring joints {core.joints} with model {path} (k*={core.model.horizon})")
+
+    def load(self, path, joints=None):
+        core, model_id, why = self.build(path, joints)
+        if core is None:
+            return False, why
+        self.apply(core, model_id, path)
         return True, ""
 
     def on_set_parameters(self, params):
-        for p in params:
-            if p.name == "model_file":
-                if not p.value:
-                    return SetParametersResult(successful=False, reason="model_file must not be empty")
-                ok, why = self.load(p.value)
-                if not ok:
+        """Validate the whole request first; apply a new model only when all of it is valid,
+        so a refused request leaves the running configuration as it was."""
+        new = {p.name: p.value for p in params}
+        if "model_file" in new and not new["model_file"]:
+            return SetParametersResult(successful=False, reason="model_file must not be empty")
+        if "model_file" in new or "joints" in new:
+            path = new.get("model_file", self.get_parameter("model_file").value)
+            joints = [j for j in new.get("joints", self.get_parameter("joints").value) if j]
+            if path:
+                core, model_id, why = self.build(path, joints)
+                if core is None:
                     return SetParametersResult(successful=False, reason=why)
-            if p.name == "joints" and self.core is not None:
-                ok, why = self.load(self.get_parameter("model_file").value, [j for j in p.value if j])
-                if not ok:
-                    return SetParametersResult(successful=False, reason=why)
+                self.apply(core, model_id, path)
         return SetParametersResult(successful=True)
 
     # -- data ---------------------------------------------------------------------------
     def on_joint_states(self, msg):
-        self.handle_events(self.core.add("y", stamp_ns(msg.header.stamp), list(msg.name), list(msg.position))
-                    if self.core else [])
+        self.on_data("y", msg.header.stamp, msg.name, msg.position)
 
     def on_plant_input(self, msg):
-        self.handle_events(self.core.add("u", stamp_ns(msg.header.stamp), list(msg.name), list(msg.acceleration))
-                    if self.core else [])
+        self.on_data("u", msg.header.stamp, msg.name, msg.acceleration)
+
+    def on_data(self, kind, stamp, names, values):
+        if self.core is None:
+            self.counters["ignored_without_model"] += 1
+            return
+        now = time.monotonic()
+        self.last_rx_wall[kind] = now
+        if self.first_rx_wall is None:
+            self.first_rx_wall = now
+        self.handle_events(self.core.add(kind, stamp_ns(stamp), list(names), list(values)))
 
     def handle_events(self, events):
         for ev in events:
@@ -239,24 +337,43 @@ class MonitorNode(Node):
         return str(out)
 
     def watchdog(self):
-        if self.core is None or self.stop_active or self.last_tick_wall is None:
+        """Missing data: no complete tick for ``max_missing_ticks`` periods (wall time) once
+        any data came, i.e. also when one topic never arrives. Before the first message
+        of either topic the monitor waits (diagnostics: WARN, waiting for data)."""
+        if self.core is None or self.stop_active:
+            return
+        since = self.last_tick_wall if self.last_tick_wall is not None else self.first_rx_wall
+        if since is None:
             return
         limit = self.get_parameter("max_missing_ticks").value * self.get_parameter("dt").value
-        silent = time.monotonic() - self.last_tick_wall
+        now = time.monotonic()
+        silent = now - since
         if silent > limit:
-            stamp = self.core.last_stamp or self.get_clock().now().nanoseconds
+            stamp = self.core.last_stamp or max(self.core.topic_last.values(), default=0) \
+                or self.get_clock().now().nanoseconds
+            detail = []
+            for kind, topic in TOPIC.items():
+                t = self.last_rx_wall.get(kind)
+                if t is None:
+                    detail.append(f"{topic} never received")
+                elif now - t > limit:
+                    detail.append(f"{topic} silent for {(now - t) * 1000:.0f} ms")
+            skipped = {k: v for k, v in self.core.counters.items()
+                       if k.startswith(("stale_", "duplicate_", "dropped_", "rejected_")) and v}
+            if skipped:
+                detail.append("skipped so far: " + ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())))
             self.trigger(stamp, "missing_data",
                          f"no complete /joint_states + /plant_input sample for {silent * 1000:.0f} ms "
-                         f"(limit {limit * 1000:.0f} ms)")
+                         f"(limit {limit * 1000:.0f} ms)" + (": " + "; ".join(detail) if detail else ""))
 
     def on_reset(self, request, response):
         was = self.stop_active
         self.stop_active = False
         if self.core is not None:
-            self.core.monitor.reset()
-            self.core.pending.clear()
-            self.core.last_stamp = None
+            self.core.reset()
         self.last_tick_wall = None
+        self.last_rx_wall.clear()
+        self.first_rx_wall = None
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()
         m.active, m.kind, m.reason = False, "reset", "reset through ~/reset"
@@ -274,10 +391,15 @@ class MonitorNode(Node):
             st.level, st.message = DiagnosticStatus.WARN, "no model loaded"
         elif self.stop_active:
             st.level, st.message = DiagnosticStatus.ERROR, f"safe stop: {self.stop_msg.reason}"
+        elif self.last_tick_wall is None:
+            st.level, st.message = DiagnosticStatus.WARN, "waiting for /joint_states and /plant_input"
         else:
             st.level, st.message = DiagnosticStatus.OK, "conformant"
+        counts = collections.Counter(self.counters)
+        counts["callback_errors"] = getattr(self, "callback_errors", 0)
         if self.core is not None:
-            st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(self.core.counters.items())]
+            counts.update(self.core.counters)
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counts.items())]
         arr.status = [st]
         self.diag_pub.publish(arr)
 

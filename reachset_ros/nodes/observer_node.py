@@ -88,10 +88,15 @@ class ObserverNode(Node):
             self.counters["stale"] += 1
             return
         idx = {n: i for i, n in enumerate(msg.name)}
-        if any(j not in idx for j in self.joints):
+        if any(j not in idx for j in self.joints) or len(msg.acceleration) < len(msg.name):
             self.counters["bad_sample"] += 1
             return
         u = {j: float(msg.acceleration[idx[j]]) for j in self.joints}
+        if not all(np.isfinite(v) for v in u.values()):
+            # a non-finite input would poison the observer state for good: skip it (counted);
+            # the next measurement advances with the last valid input
+            self.counters["bad_sample"] += 1
+            return
         self.last_u = u
         self.advance(self.pending[1], u)
 
