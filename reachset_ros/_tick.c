@@ -224,3 +224,122 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
     *s->cur = !*s->cur;
     return all_ok;
 }
+
+/* ------------------------------------------------------------------ the batch sweep */
+
+/* A matrix's nonzero entries per row, in row-major order (zeros are skipped, as in
+ * conformance._plan; a factor 1.0 is multiplied, which is exact: 1.0 * x == x). */
+typedef struct {
+    int64_t rows;
+    int64_t start[65];   /* row r: entries start[r] .. start[r+1]-1 */
+    int64_t col[64 * 64];
+    double coef[64 * 64];
+} plan_t;
+
+static void make_plan(plan_t *p, const double *M, int64_t rows, int64_t cols)
+{
+    int64_t e = 0;
+    p->rows = rows;
+    for (int64_t r = 0; r < rows; ++r) {
+        p->start[r] = e;
+        for (int64_t c = 0; c < cols; ++c)
+            if (M[r * cols + c] != 0.0) {
+                p->col[e] = c;
+                p->coef[e] = M[r * cols + c];
+                ++e;
+            }
+    }
+    p->start[rows] = e;
+}
+
+/* one column of conformance.matvec_into: first term assigned, the others added in order,
+ * an empty row gives 0.0 */
+static inline double plan_dot(const plan_t *p, int64_t r, const double *v)
+{
+    int64_t a = p->start[r], b = p->start[r + 1];
+    if (a == b)
+        return 0.0;
+    double out = p->coef[a] * v[p->col[a]];
+    for (int64_t e = a + 1; e < b; ++e) out = out + p->coef[e] * v[p->col[e]];
+    return out;
+}
+
+/* out[i] = row r of the plan applied to the columns v[c][i], i < m: first term assigned,
+ * the others added in order, an empty row gives 0.0 (conformance.matvec_into). */
+static inline void plan_row(const plan_t *p, int64_t r, double *const *v, int64_t m, double *restrict out)
+{
+    int64_t a = p->start[r], b = p->start[r + 1];
+    if (a == b) {
+        for (int64_t i = 0; i < m; ++i) out[i] = 0.0;
+        return;
+    }
+    const double c0 = p->coef[a];
+    const double *restrict v0 = v[p->col[a]];
+    for (int64_t i = 0; i < m; ++i) out[i] = c0 * v0[i];
+    for (int64_t e = a + 1; e < b; ++e) {
+        const double c = p->coef[e];
+        const double *restrict ve = v[p->col[e]];
+        for (int64_t i = 0; i < m; ++i) out[i] = out[i] + c * ve[i];
+    }
+}
+
+#define TILE 256
+
+/* One block of conformance.sweep: for the test cases i < M (columns of X, initial states
+ * estimated by the caller) and k = 0..min(rem[i] - 1, horizon), with t = starts[i] + k,
+ *
+ *     ya[k][r][i] = y[t][r] - ((C x)[r] (+ (D u[t])[r] if has_d)),   x <- A x + B u[t],
+ *
+ * the operations of conformance.predict_output and conformance.advance on each column, in
+ * their order (columns are independent; tiles of TILE columns keep the data in cache).
+ * X (n x M) is overwritten; ya is (horizon + 1) x ny x M, entries of test cases that ended
+ * before k are left untouched. rem must be sorted in descending order.
+ * Returns 0, or -1 if a size exceeds 64. */
+int64_t reachset_sweep_block(const double *A, const double *B, const double *C, const double *D,
+                             int64_t has_d, int64_t n, int64_t nu, int64_t ny,
+                             const double *y, const double *u, const int64_t *starts, const int64_t *rem,
+                             int64_t M, int64_t horizon, double *X, double *ya)
+{
+    static __thread plan_t pA, pB, pC, pD;
+    static __thread double xs[2][64][TILE], us[64][TILE], tmp[TILE];
+    double *xv[64], *xn[64], *uv[64];
+    if (n > 64 || nu > 64 || ny > 64)
+        return -1;
+    make_plan(&pA, A, n, n);
+    make_plan(&pB, B, n, nu);
+    make_plan(&pC, C, ny, n);
+    make_plan(&pD, D, ny, nu);
+    for (int64_t c = 0; c < nu; ++c) uv[c] = us[c];
+    for (int64_t i0 = 0; i0 < M; i0 += TILE) {
+        int64_t m = M - i0 < TILE ? M - i0 : TILE;
+        int cur = 0;
+        for (int64_t s = 0; s < n; ++s) memcpy(xs[cur][s], X + s * M + i0, (size_t)m * sizeof(double));
+        for (int64_t k = 0; k <= horizon; ++k) {
+            while (m > 0 && rem[i0 + m - 1] <= k) --m;      /* rem descending: drop ended test cases */
+            if (m == 0)
+                break;
+            for (int64_t s = 0; s < n; ++s) {
+                xv[s] = xs[cur][s];
+                xn[s] = xs[!cur][s];
+            }
+            for (int64_t c = 0; c < nu; ++c)
+                for (int64_t i = 0; i < m; ++i) us[c][i] = u[(starts[i0 + i] + k) * nu + c];
+            for (int64_t r = 0; r < ny; ++r) {
+                double *restrict out = ya + (k * ny + r) * M + i0;
+                plan_row(&pC, r, xv, m, out);                  /* y* = C x */
+                if (has_d) {
+                    plan_row(&pD, r, uv, m, tmp);              /* + D u */
+                    for (int64_t i = 0; i < m; ++i) out[i] = out[i] + tmp[i];
+                }
+                for (int64_t i = 0; i < m; ++i) out[i] = y[(starts[i0 + i] + k) * ny + r] - out[i];
+            }
+            for (int64_t s = 0; s < n; ++s) {                  /* x <- A x + B u */
+                plan_row(&pA, s, xv, m, xn[s]);
+                plan_row(&pB, s, uv, m, tmp);
+                for (int64_t i = 0; i < m; ++i) xn[s][i] = xn[s][i] + tmp[i];
+            }
+            cur = !cur;
+        }
+    }
+    return 0;
+}

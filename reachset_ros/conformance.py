@@ -19,12 +19,14 @@ tick at a time, produce bitwise identical deviations and hence identical verdict
 """
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linprog
 
+from . import kernel
 from .errors import InfeasibleError, ReachsetError
 
 
@@ -144,6 +146,8 @@ def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
 
 def _sweep_block(plant, estimator, y, u, starts, rem, horizon, visit):
     X = estimator.estimate(plant, y, u, starts)
+    if kernel.LIB is not None and plant.A.shape[0] <= 64 and plant.B.shape[1] <= 64:
+        return _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X)
     for k in range(horizon + 1):
         Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
         if Mk == 0:
@@ -155,6 +159,28 @@ def _sweep_block(plant, estimator, y, u, starts, rem, horizon, visit):
         ya = y[t].T - predict_output(plant, X, U)
         visit(k, m, t, ya)
         X = advance(plant, X, U)
+
+
+def _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X):
+    """:func:`_sweep_block` with the deviations computed by the compiled kernel (bitwise equal)."""
+    M, ny = len(starts), plant.C.shape[0]
+    K = int(min(horizon, rem.max() - 1))
+    f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)   # noqa: E731
+    A, B, C, D = f8(plant.A), f8(plant.B), f8(plant.C), f8(plant.D)
+    y, u, X = f8(y), f8(u), f8(X)
+    starts, rem = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(rem, np.int64)
+    ya = np.empty((K + 1, ny, M))
+    p = kernel.ptr
+    rc = kernel.LIB.reachset_sweep_block(p(A), p(B), p(C), p(D), int(bool(np.any(plant.D))), A.shape[0], B.shape[1],
+                                         ny, p(y), p(u), p(starts), p(rem), M, K, p(X), p(ya))
+    if rc != 0:
+        raise RuntimeError("reachset_sweep_block failed")
+    for k in range(K + 1):
+        Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
+        if Mk == 0:
+            break
+        m = starts[:Mk]
+        visit(k, m, m + k, ya[k, :, :Mk])
 
 
 # ------------------------------------------------------------------ Theorem 1
@@ -257,6 +283,37 @@ def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None):
             maxp[k] = np.full(q, -np.inf)
             maxm[k] = np.full(q, -np.inf)
     return Deviations(tuple(maxp), tuple(maxm), M, count[0])
+
+
+def deviation_extremes_many(plant, estimator, series, horizon, thm=None, workers=None):
+    """:func:`deviation_extremes` of several joints, in threads (one per core by default).
+
+    ``series``: {name: object with ``y``, ``u``, ``segments``}. The compiled sweep kernel
+    releases the GIL, so joints run in parallel; each joint's result is the one
+    :func:`deviation_extremes` gives on its own. A ReachsetError names the first failing
+    joint in ``series`` order.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+    thm = thm or Theorem1.build(plant, horizon)
+    names = list(series)
+    workers = workers or min(len(names), os.cpu_count() or 1)
+
+    def one(name):
+        s = series[name]
+        try:
+            return deviation_extremes(plant, estimator, s.y, s.u, s.segments, horizon, thm)
+        except ReachsetError as e:
+            return ReachsetError(f"joint {name}: {e}")
+
+    if workers <= 1 or len(names) <= 1:
+        res = [one(n) for n in names]
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            res = list(pool.map(one, names))
+    for r in res:
+        if isinstance(r, ReachsetError):
+            raise r
+    return dict(zip(names, res))
 
 
 def combine(devs):

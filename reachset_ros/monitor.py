@@ -12,14 +12,12 @@ element-wise kernels), so ``reachset replay`` gives exactly ``reachset check``'s
 from __future__ import annotations
 
 import ctypes
-import importlib.machinery
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from . import kernel
 from .conformance import Theorem1, _plan, advance, matvec, matvec_into, predict_output
 
 
@@ -418,22 +416,7 @@ class _TickState(ctypes.Structure):
                     "status")])
 
 
-def _load_kernel():
-    if os.environ.get("REACHSET_NO_KERNEL"):
-        return None, None
-    here = Path(__file__).resolve().parent
-    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        path = here / f"_tick{suffix}"
-        if path.exists():
-            lib = ctypes.CDLL(str(path))
-            fn = lib.reachset_monitor_tick
-            fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
-            fn.restype = ctypes.c_int64
-            return lib, str(path)
-    return None, None
-
-
-_KERNEL, KERNEL_PATH = _load_kernel()
+_KERNEL, KERNEL_PATH = kernel.LIB, kernel.PATH
 
 
 def _tick_kernel_applies(plant, estimator, joints):

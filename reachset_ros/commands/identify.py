@@ -28,7 +28,7 @@ from ..errors import ReachsetError
 from ..estimators import ESTIMATORS, Estimator
 from ..plant import lwa4p_joint_plant
 from . import emit
-from ._bagargs import add_bag_arguments, check_out_path, load_series
+from ._bagargs import add_bag_arguments, check_out_path, load_series, require_horizon
 
 NAME = "identify"
 HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
@@ -69,11 +69,9 @@ def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=Non
     """
     thm = thm or cf.Theorem1.build(plant, horizon)
     out = {}
+    devs = cf.deviation_extremes_many(plant, est, series, horizon, thm)
     for name, s in series.items():
-        try:
-            dev = cf.deviation_extremes(plant, est, s.y, s.u, s.segments, horizon, thm)
-        except ReachsetError as e:
-            raise ReachsetError(f"joint {name}: {e}") from None
+        dev = devs[name]
         try:
             if method == "corollary1":
                 sets = cf.identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
@@ -151,6 +149,7 @@ def run(args):
     plant = lwa4p_joint_plant(dt=args.dt)
     est = Estimator(args.estimator)
     series, report = load_series(args.bags, args.joints, args.dt)
+    require_horizon(series, est.history, args.horizon, args.bags)
     vseries = vreport = None
     if args.validate:
         vseries, vreport = load_series(args.validate, list(series), args.dt)
