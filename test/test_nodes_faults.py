@@ -242,3 +242,624 @@ def test_core_joint_list_must_be_in_the_model(model):
         MonitorCore(mdl.load(model), ["arm_1_joint", "arm_3_joint"])
     with pytest.raises(ReachsetError, match="twice"):
         MonitorCore(mdl.load(model), ["arm_1_joint", "arm_1_joint"])
+
+
+# ============================================================ real processes over DDS
+class Bus:
+    """The test's side of DDS: publishers and service clients on ``caller`` (main thread),
+    subscriptions on ``listener``, spun by its own executor thread so nothing is missed."""
+
+    def __init__(self):
+        self.caller = Node("faults_caller")
+        self.listener = Node("faults_listener")
+        self.status, self.stops, self.inputs = [], [], []
+        self.diags = {}
+        deep = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        L = self.listener
+        L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
+        L.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
+        L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
+        L.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, deep)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(L)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        C = self.caller
+        self.js = C.create_publisher(JointState, "joint_states", PUB_QOS)
+        self.pi = C.create_publisher(PlantInput, "plant_input", PUB_QOS)
+        self.est = C.create_publisher(JointEstimate, "observer/estimate", PUB_QOS)
+        self.ref = C.create_publisher(JointReference, "reference", PUB_QOS)
+
+    def _on_diag(self, arr):
+        for st in arr.status:
+            self.diags[st.name] = (st.level, st.message, {kv.key: kv.value for kv in st.values}, time.monotonic())
+
+    def close(self):
+        self.executor.shutdown()
+        self.listener.destroy_node()
+        self.caller.destroy_node()
+
+    def clear(self):
+        del self.status[:], self.stops[:], self.inputs[:]
+
+    @staticmethod
+    def wait(cond, timeout=15.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if cond():
+                return True
+            time.sleep(0.01)
+        return bool(cond())
+
+    def active_stops(self):
+        return [s for s in list(self.stops) if s.active]
+
+    def statuses(self, ts):
+        lo, hi = ts[0], ts[-1]
+        return [s for s in list(self.status) if lo <= stamp_ns(s.header.stamp) <= hi]
+
+    def call_trigger(self, name, timeout=15.0):
+        cli = self.caller.create_client(Trigger, name)
+        try:
+            assert cli.wait_for_service(timeout_sec=timeout), f"{name} not available"
+            fut = cli.call_async(Trigger.Request())
+            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=timeout)
+            assert fut.done(), f"{name} did not answer"
+            return fut.result()
+        finally:
+            self.caller.destroy_client(cli)
+
+    def set_params(self, target, values, atomically=True):
+        return set_remote_parameters(self.caller, target, values, atomically=atomically)
+
+    def get_param(self, target, name):
+        cli = self.caller.create_client(GetParameters, f"/{target}/get_parameters")
+        try:
+            assert cli.wait_for_service(timeout_sec=15.0)
+            fut = cli.call_async(GetParameters.Request(names=[name]))
+            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=15.0)
+            v = fut.result().values[0]
+            return {1: v.bool_value, 2: v.integer_value, 3: v.double_value, 4: v.string_value,
+                    8: list(v.double_array_value), 9: list(v.string_array_value)}.get(v.type)
+        finally:
+            self.caller.destroy_client(cli)
+
+    def counters(self, name="reachset_ros: conformance monitor", newer_than=None, timeout=15.0):
+        """Counters of the next /diagnostics of ``name`` received after ``newer_than`` (monotonic)."""
+        t = time.monotonic() if newer_than is None else newer_than
+        assert self.wait(lambda: name in self.diags and self.diags[name][3] > t, timeout), f"no diagnostics of {name}"
+        return {k: int(v) if v.lstrip("-").isdigit() else v for k, v in self.diags[name][2].items()}
+
+    def send_y(self, t, names, values):
+        m = JointState(name=list(names), position=[float(v) for v in values])
+        to_stamp(m.header.stamp, t)
+        self.js.publish(m)
+
+    def send_u(self, t, names, values):
+        m = PlantInput(name=list(names), acceleration=[float(v) for v in values])
+        to_stamp(m.header.stamp, t)
+        self.pi.publish(m)
+
+    def send_ticks(self, ts, Y, U, drop_y=(), drop_u=(), pace=0.002):
+        for k, t in enumerate(ts):
+            if k not in drop_y:
+                self.send_y(t, JOINTS, Y[k])
+            if k not in drop_u:
+                self.send_u(t, JOINTS[::-1], U[k][::-1])
+            if pace:
+                time.sleep(pace)
+
+
+@pytest.fixture(scope="module")
+def bus():
+    rclpy.init()
+    b = Bus()
+    yield b
+    b.close()
+    rclpy.shutdown()
+
+
+def corrupt(case, t_bad, t_old, y, u):
+    """What to publish for a bad tick: (stamp, names of y, y values, u values)."""
+    names, y, u = list(JOINTS), list(y), list(u)
+    if case == "nan_y":
+        y[1] = math.nan
+    elif case == "inf_u":
+        u[0] = math.inf
+    elif case == "short_positions":
+        y = y[:1]
+    elif case == "missing_joint":
+        names = [JOINTS[0], "gripper_joint"]
+    elif case == "unknown_names":
+        names = ["a", "b"]
+    elif case == "duplicate_name":
+        names, y = [JOINTS[0], JOINTS[0], JOINTS[1]], [y[0], y[0], y[1]]
+    elif case == "stamp_backwards":
+        return t_old, names, y, u
+    return t_bad, names, y, u
+
+
+BAD_CASES = [
+    ("nan_y", "invalid_sample", "arm_2_joint", "non-finite"),
+    ("inf_u", "invalid_sample", "arm_1_joint", "non-finite"),
+    ("short_positions", "invalid_sample", "", "2 names but 1 values"),
+    ("missing_joint", "name_mismatch", "arm_2_joint", "lacks joint arm_2_joint"),
+    ("unknown_names", "name_mismatch", "arm_1_joint", "lacks joint arm_1_joint"),
+    ("duplicate_name", "name_mismatch", "arm_1_joint", "names joint arm_1_joint twice"),
+    ("stamp_backwards", "stamp_backwards", "", "/joint_states stamp went backwards"),
+]
+
+
+@pytest.fixture(scope="class")
+def monitor(bus, tmp_path_factory):
+    """A monitor_node process for one test class (the next class may start its own)."""
+    d = tmp_path_factory.mktemp("monitor")
+    path = write_model(d / "m.yaml")
+    proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+                                         "window_dir": str(d / "windows")}, d)
+    try:
+        assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
+                        and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+        yield proc, path, d
+    finally:
+        launch.stop([proc])
+
+
+class TestMonitorNode:
+    """One monitor_node process for the class, reset before each test."""
+
+    @pytest.fixture
+    def mon(self, monitor, bus):
+        proc, path, d = monitor
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 10000})
+        assert ok, why
+        assert bus.call_trigger("/monitor_node/reset").success
+        assert bus.wait(lambda: bus.stops and not bus.stops[-1].active)
+        bus.clear()
+        yield proc, path, d
+        assert proc.alive(), proc.log.read_text()[-3000:]
+
+    def alive_and_checking(self, bus, proc, seed=9):
+        """The node answers its reset service and checks a fresh clean stream again."""
+        assert proc.alive()
+        assert bus.call_trigger("/monitor_node/reset").success
+        Y, U = stream(40, seed)
+        ts = stamps(40)
+        bus.send_ticks(ts, Y, U)
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 40), len(bus.statuses(ts))
+        st = bus.statuses(ts)
+        assert all(s.conformant and not s.safe_stop_active for s in st)
+
+    @pytest.mark.parametrize("case, kind, joint, words", BAD_CASES)
+    def test_bad_sample_latches_safe_stop_with_reason(self, bus, mon, case, kind, joint, words):
+        proc, _, _ = mon
+        Y, U = stream(90, seed=1)
+        ts = stamps(90)
+        bus.send_ticks(ts[:60], Y, U)
+        assert bus.wait(lambda: len(bus.statuses(ts[:60])) == 60)
+        t, names, y, u = corrupt(case, ts[60], ts[30], Y[60], U[60])
+        bus.send_y(t, names, y)
+        bus.send_u(ts[60], JOINTS, u)
+        bus.send_ticks(ts[62:], Y[62:], U[62:])
+        assert bus.wait(lambda: bus.active_stops())
+        stop = bus.active_stops()[0]
+        assert (stamp_ns(stop.header.stamp), stop.kind, stop.joint) == (t, kind, joint), stop
+        assert words in stop.reason, stop.reason
+        # no verdict before it was wrong, none for the bad tick; checking went on afterwards
+        assert bus.wait(lambda: len(bus.statuses(ts[62:])) == 28), len(bus.statuses(ts[62:]))
+        assert all(s.conformant for s in bus.statuses(ts[:60]))
+        assert not [s for s in bus.statuses(ts) if stamp_ns(s.header.stamp) == ts[60]]
+        assert all(s.safe_stop_active and s.conformant for s in bus.statuses(ts[62:]))
+        assert len(bus.active_stops()) == 1   # first cause wins; later ones do not re-publish
+        self.alive_and_checking(bus, proc)
+
+    def test_extra_names_are_ignored_and_counted(self, bus, mon):
+        Y, U = stream(50, seed=2)
+        ts = stamps(50)
+        before = bus.counters()
+        for k, t in enumerate(ts):
+            bus.send_y(t, ["gripper_joint", JOINTS[1], JOINTS[0]], [123.0, Y[k, 1], Y[k, 0]])
+            bus.send_u(t, JOINTS + ["other_joint"], list(U[k]) + [math.nan])
+            time.sleep(0.002)
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 50)
+        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+
+        def delta():
+            c = bus.counters()
+            return tuple(c.get(k, 0) - before.get(k, 0) for k in ("extra_names_y", "extra_names_u", "ticks"))
+        assert bus.wait(lambda: delta() == (50, 50, 50)), delta()
+
+    def test_repeated_stamps_are_skipped_and_counted(self, bus, mon):
+        Y, U = stream(60, seed=3)
+        ts = stamps(60)
+        before = bus.counters()
+        bus.send_ticks(ts[:40], Y, U)
+        bus.send_y(ts[39], JOINTS, Y[39])          # the last sample again
+        bus.send_u(ts[39], JOINTS, U[39])
+        bus.send_y(ts[40], JOINTS, Y[40])
+        bus.send_y(ts[40], JOINTS, [9.0, 9.0])     # a second, different sample at the same stamp
+        bus.send_u(ts[40], JOINTS, U[40])
+        bus.send_ticks(ts[41:], Y[41:], U[41:])
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 60), len(bus.statuses(ts))
+        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+
+        def delta():
+            c = bus.counters()
+            return tuple(c.get(k, 0) - before.get(k, 0) for k in ("duplicate_y", "duplicate_u", "ticks"))
+        assert bus.wait(lambda: delta() == (2, 1, 60)), delta()
+
+    def test_dropped_messages_are_counted_gaps(self, bus, mon):
+        Y, U = stream(300, seed=5)
+        ts = stamps(300)
+        before = bus.counters()
+        bus.send_ticks(ts, Y, U, drop_y={100, 200, 201, 202}, drop_u={150, 200, 201, 202})
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 295), len(bus.statuses(ts))
+        got = [stamp_ns(s.header.stamp) for s in bus.statuses(ts)]
+        assert got == [t for k, t in enumerate(ts) if k not in (100, 150, 200, 201, 202)]
+        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+
+        def delta():
+            c = bus.counters()
+            return tuple(c.get(k, 0) - before.get(k, 0) for k in ("ticks", "dropped_incomplete", "gaps",
+                                                                    "missing_ticks"))
+        assert bus.wait(lambda: delta() == (295, 2, 3, 5)), delta()
+
+    def test_burst_every_processed_tick_has_a_status_and_losses_are_counted(self, bus, mon):
+        """800 ticks published back to back, faster than the monitor checks them."""
+        proc, _, _ = mon
+        n = 800
+        Y, U = stream(n + 50, seed=7)
+        ts = stamps(n + 50)
+        before = bus.counters()
+        bus.send_ticks(ts[:n], Y, U, pace=0)
+        # then single ticks on the same grid until one is checked: both topics and the status
+        # are ordered, so by then every tick of the burst that reached the monitor was checked
+        # and its status is here
+        for k in range(n, n + 50):
+            bus.send_ticks(ts[k:k + 1], Y[k:k + 1], U[k:k + 1], pace=0)
+            if bus.wait(lambda: bus.statuses(ts[n:]), 5.0):
+                break
+        st = bus.statuses(ts)
+        got = [stamp_ns(s.header.stamp) for s in st]
+        assert got and got[-1] >= ts[n]
+        assert got == sorted(got) and len(set(got)) == len(got)
+        assert all(s.conformant for s in st) and not bus.active_stops()
+        # the diagnostics account for every tick between the first and the last checked one
+        assert bus.wait(lambda: bus.counters()["ticks"] - before.get("ticks", 0) >= len(st))
+        c = bus.counters()
+        assert c["ticks"] - before.get("ticks", 0) == len(st), (c, before, len(st))
+        missing = c.get("missing_ticks", 0) - before.get("missing_ticks", 0)
+        print(f"burst of {n}: {len(st)} checked, {missing} missing in gaps, "
+              f"{c.get('dropped_incomplete', 0) - before.get('dropped_incomplete', 0)} half ticks dropped")
+        assert len(st) + missing == (got[-1] - got[0]) // DT_NS + 1
+        # the tick counter in the statuses has no holes: each checked tick was published
+        ticks = [s.tick for s in st]
+        assert ticks == list(range(ticks[0], ticks[0] + len(ticks)))
+        self.alive_and_checking(bus, proc)
+
+    def test_plant_input_never_arriving_is_missing_data(self, bus, mon):
+        proc, _, _ = mon
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})
+        assert ok, why
+        Y, _ = stream(5000, seed=8)
+        ts = stamps(5000)
+        for k, t in enumerate(ts):
+            bus.send_y(t, JOINTS, Y[k])
+            time.sleep(0.002)
+            if bus.active_stops():
+                break
+        stops = bus.active_stops()
+        assert stops and stops[0].kind == "missing_data", stops
+        assert "/plant_input never received" in stops[0].reason, stops[0].reason
+        assert "limit 200 ms" in stops[0].reason
+        assert not bus.statuses(ts)
+        self.alive_and_checking(bus, proc)
+
+    def test_topic_going_silent_is_missing_data(self, bus, mon):
+        proc, _, _ = mon
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})
+        assert ok, why
+        Y, U = stream(5000, seed=10)
+        ts = stamps(5000)
+        bus.send_ticks(ts[:100], Y, U)
+        for k in range(100, 5000):
+            bus.send_u(ts[k], JOINTS, U[k])      # /joint_states went silent
+            time.sleep(0.002)
+            if bus.active_stops():
+                break
+        stops = bus.active_stops()
+        assert stops and stops[0].kind == "missing_data", stops
+        assert "/joint_states silent for" in stops[0].reason, stops[0].reason
+        assert bus.wait(lambda: len(bus.statuses(ts[:100])) == 100)
+        assert all(s.conformant for s in bus.statuses(ts[:100]))
+        assert stamp_ns(stops[0].header.stamp) == ts[99]   # the last tick checked
+        self.alive_and_checking(bus, proc)
+
+    def test_bad_parameter_updates_are_refused_and_change_nothing(self, bus, mon, tmp_path):
+        proc, path, _ = mon
+        model_id = mdl.file_sha256(path)[:12]
+        garbage = tmp_path / "garbage.yaml"
+        garbage.write_text("format: [unclosed\n  {{ :\n")
+        negative = tmp_path / "negative.yaml"
+        negative.write_text(path.read_text().replace("- 0.15", "- -0.15", 1))
+        assert negative.read_text() != path.read_text()
+        other = write_model(tmp_path / "other.yaml", alpha_w=(0.3, 0.0))
+        cases = [
+            ({"model_file": str(tmp_path / "missing.yaml")}, "model file not found"),
+            ({"model_file": str(garbage)}, "does not parse"),
+            ({"model_file": str(negative)}, "negative scaling factor"),
+            ({"model_file": ""}, "must not be empty"),
+            ({"joints": ["arm_3_joint"]}, "arm_3_joint is not in the model"),
+            ({"model_file": str(other), "joints": ["arm_1_joint", "arm_9_joint"]}, "arm_9_joint is not in the model"),
+            ({"max_missing_ticks": 0}, "out of range"),
+            ({"dt": math.nan}, "out of range"),
+            ({"dt": -0.004}, "out of range"),
+        ]
+        for values, words in cases:
+            ok, why = bus.set_params("monitor_node", values)
+            assert not ok and words in why, (values, why)
+        assert bus.get_param("monitor_node", "model_file") == str(path)
+        assert bus.get_param("monitor_node", "joints") == [""]
+        assert bus.get_param("monitor_node", "max_missing_ticks") == 10000
+        # the running model is the one it had: same id, same verdicts
+        Y, U = stream(60, seed=11)
+        ts = stamps(60)
+        bus.send_ticks(ts, Y, U)
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 60)
+        assert all(s.model_id == model_id and s.conformant and list(s.name) == JOINTS for s in bus.statuses(ts))
+        assert not bus.active_stops()
+        # a valid update is applied (the refusals above were not vacuous), and back
+        ok, why = bus.set_params("monitor_node", {"model_file": str(other), "joints": ["arm_2_joint"]})
+        assert ok, why
+        ts = stamps(20)
+        bus.send_ticks(ts, Y, U)
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 20)
+        assert all(s.model_id == mdl.file_sha256(other)[:12] and list(s.name) == ["arm_2_joint"]
+                   for s in bus.statuses(ts))
+        ok, why = bus.set_params("monitor_node", {"model_file": str(path), "joints": [""]})
+        assert ok, why
+        self.alive_and_checking(bus, proc)
+
+
+# ------------------------------------------------------------ controller_node
+Q_TEST = np.array([0.1, -0.2])
+
+
+def start_controller(d, model=None, u_max=(26.0, 26.0)):
+    params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0]}
+    if model is not None:
+        params["model_file"] = str(model)
+    return launch.start("controller_node", params, d)
+
+
+def tracking_law(omega, zeta, q=Q_TEST, qd=(0.0, 0.0)):
+    """The static law with the test's reference (q_d = qd_d = qdd_d = 0)."""
+    return -np.asarray(omega) ** 2 * q - 2 * np.asarray(zeta) * np.asarray(omega) * np.asarray(qd)
+
+
+def braking_law(q, qd, u_max):
+    """docs of controller_node: hold at q + qd |qd| / u_max, PD (8 rad/s, damping 1) saturated to U_p."""
+    q, qd = np.asarray(q), np.asarray(qd)
+    q_hold = q + qd * np.abs(qd) / np.asarray(u_max)
+    return np.clip(64.0 * (q_hold - q) - 16.0 * qd, -np.asarray(u_max), np.asarray(u_max))
+
+
+def outputs(bus, ts):
+    """The controller's /plant_input accelerations for the stamps ``ts`` (stamp -> array, joint order JOINTS)."""
+    want = set(ts)
+    out = {}
+    for m in list(bus.inputs):
+        t = stamp_ns(m.header.stamp)
+        if t in want:
+            idx = {n: i for i, n in enumerate(m.name)}
+            out[t] = np.array([m.acceleration[idx[j]] for j in JOINTS])
+    return out
+
+
+def drive(bus, ts, q=Q_TEST, qd=(0.0, 0.0), reference=True, est_names=JOINTS, wait=True):
+    """For each stamp: a reference (all zeros) then, 20 ms later, an estimate; returns the outputs."""
+    for t in ts:
+        if reference:
+            r = JointReference(name=JOINTS, position=[0.0, 0.0], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])
+            to_stamp(r.header.stamp, t)
+            bus.ref.publish(r)
+            time.sleep(0.02)
+        e = JointEstimate(name=list(est_names), position=[float(v) for v in q], velocity=[float(v) for v in qd],
+                          disturbance=[0.0] * len(q))
+        to_stamp(e.header.stamp, t)
+        bus.est.publish(e)
+    if wait:
+        bus.wait(lambda: len(outputs(bus, ts)) == len(ts), 10)
+    return outputs(bus, ts)
+
+
+def assert_law(bus, expected, timeout=20.0):
+    """Drive the controller (q = Q_TEST, qd = 0, reference 0) until it has computed three
+    outputs with the reference; each must be ``expected``. A reference that arrives after
+    its estimate is not used; that output is the hold law, u = 0 here, and is allowed."""
+    end = time.monotonic() + timeout
+    seen = 0
+    while time.monotonic() < end and seen < 3:
+        for u in drive(bus, stamps(3)).values():
+            if np.all(u == 0.0):
+                continue
+            np.testing.assert_allclose(u, expected, rtol=0, atol=1e-9)
+            seen += 1
+    assert seen, f"no output computed with the reference within {timeout} s"
+
+
+@pytest.fixture(scope="class")
+def controller(bus, tmp_path_factory):
+    """A controller_node process (with a model) for one test class."""
+    d = tmp_path_factory.mktemp("controller")
+    model = write_model(d / "m.yaml")
+    proc = start_controller(d, model)
+    try:
+        assert bus.wait(lambda: bus.est.get_subscription_count() and bus.ref.get_subscription_count()
+                        and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
+        yield proc, model, d
+    finally:
+        launch.stop([proc])
+
+
+class TestControllerNode:
+    def test_bad_parameter_updates_are_refused_and_change_nothing(self, bus, controller, tmp_path):
+        proc, model, _ = controller
+        bus.clear()
+        assert_law(bus, tracking_law(10.0, 1.0))
+        garbage = tmp_path / "garbage.yaml"
+        garbage.write_text("joints: {arm_1_joint: [1, 2\n")
+        negative = tmp_path / "negative.yaml"
+        negative.write_text(model.read_text().replace("- 0.15", "- -0.15", 1))
+        wide = write_model(tmp_path / "wide.yaml", alpha_w=(5.0, 50.0), alpha_v=(1e-2,))
+        arm1_only = write_model(tmp_path / "arm1.yaml", joints=["arm_1_joint"])
+        cases = [
+            ({"omega": [math.nan]}, "gain omega must be a positive finite number"),
+            ({"zeta": [-1.0]}, "gain zeta must be a positive finite number"),
+            ({"omega": [0.0, 10.0]}, "gain omega must be a positive finite number"),
+            ({"omega": [60.0]}, "closed loop unstable"),
+            ({"omega": [10.0, 10.0, 10.0]}, "omega needs 1 or 2 values, got 3"),
+            ({"eps": [math.inf]}, "gain eps must be a positive finite number"),
+            ({"controller": "compensated"}, "needs the ESO"),
+            ({"observer": "kalman"}, "observer must be hg or eso"),
+            ({"u_max": [-26.0]}, "u_max must be finite and > 0"),
+            ({"u_max": [26.0, math.nan]}, "u_max must be finite and > 0"),
+            ({"u_max": [1.0]}, "leaves U_p = +-1"),
+            ({"u_ff_bound": 30.0}, "leaves U_p = +-26"),
+            ({"model_file": str(tmp_path / "missing.yaml")}, "model file not found"),
+            ({"model_file": str(garbage)}, "does not parse"),
+            ({"model_file": str(negative)}, "negative scaling factor"),
+            ({"model_file": str(wide)}, "leaves U_p"),
+            # a joint the new model does not cover still gets its stability check
+            ({"model_file": str(arm1_only), "omega": [10.0, 300.0]}, "joint arm_2_joint: closed loop unstable"),
+            ({"joints": ["arm_1_joint"]}, "fixed at start-up"),
+        ]
+        for values, words in cases:
+            ok, why = bus.set_params("controller_node", values)
+            assert not ok and words in why, (values, why)
+        assert bus.get_param("controller_node", "omega") == [10.0]
+        assert bus.get_param("controller_node", "u_max") == [26.0, 26.0]
+        assert bus.get_param("controller_node", "model_file") == str(model)
+        # the running law is unchanged; a valid change is applied (the refusals were not vacuous)
+        bus.clear()
+        assert_law(bus, tracking_law(10.0, 1.0))
+        ok, why = bus.set_params("controller_node", {"omega": [12.0, 14.0]})
+        assert ok, why
+        assert_law(bus, tracking_law([12.0, 14.0], 1.0))
+        ok, why = bus.set_params("controller_node", {"omega": [10.0]})
+        assert ok, why
+        assert proc.alive()
+
+    def test_unusable_estimates_are_skipped_and_references_ignored_counted(self, bus, controller):
+        proc, _, _ = controller
+        bus.clear()
+        name = "reachset_ros: controller"
+        before = bus.counters(name)
+        # estimates: a joint missing, a short velocity array, a non-finite value -> no output
+        bad = stamps(3)
+        for t, est in zip(bad, [JointEstimate(name=[JOINTS[0]], position=[0.1], velocity=[0.0]),
+                                JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0]),
+                                JointEstimate(name=JOINTS, position=[0.1, math.nan], velocity=[0.0, 0.0])]):
+            to_stamp(est.header.stamp, t)
+            bus.est.publish(est)
+        assert_law(bus, tracking_law(10.0, 1.0))   # processed after the bad ones
+        assert not outputs(bus, bad)
+        # references: a joint missing, a non-finite value, a short array -> treated as none:
+        # hold the measured position (u = -2 zeta omega qd)
+        qd = np.array([0.3, -0.1])
+        refs = [JointReference(name=[JOINTS[1]], position=[0.0], velocity=[0.0], acceleration=[0.0]),
+                JointReference(name=JOINTS, position=[0.0, 0.0], velocity=[0.0, 0.0], acceleration=[math.nan, 0.0]),
+                JointReference(name=JOINTS, position=[0.0], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])]
+        for i, r in enumerate(refs):
+            for _ in range(5):   # again if the estimate overtook the reference (then it was not read)
+                t = stamps(1)[0]
+                to_stamp(r.header.stamp, t)
+                bus.ref.publish(r)
+                time.sleep(0.05)
+                got = drive(bus, [t], qd=qd, reference=False)
+                np.testing.assert_allclose(got[t], -2 * 1.0 * 10.0 * qd, rtol=0, atol=1e-9)
+                if bus.counters(name)["bad_reference"] - before["bad_reference"] == i + 1:
+                    break
+        c = bus.counters(name)
+        assert c["bad_estimate"] - before["bad_estimate"] == 3, c
+        assert c["bad_reference"] - before["bad_reference"] == 3, c
+        assert c["callback_errors"] == 0 and proc.alive()
+        assert_law(bus, tracking_law(10.0, 1.0))
+
+
+class TestSafeStopLatch:
+    def test_latched_stop_reaches_a_restarted_controller_and_only_reset_clears_it(self, bus, monitor, tmp_path):
+        mproc, _, _ = monitor
+        assert bus.call_trigger("/monitor_node/reset").success
+        assert bus.wait(lambda: bus.stops and not bus.stops[-1].active)
+        bus.clear()
+        u_max = np.array([26.0, 26.0])
+        qd = np.array([0.5, -0.5])
+        track = tracking_law(10.0, 1.0, qd=qd)
+        brake = braking_law(Q_TEST, qd, u_max)
+        hold_only = -2 * 10.0 * qd       # tracking without a reference
+        assert len({tuple(np.round(v, 6)) for v in (track, brake, hold_only)}) == 3
+
+        def settle(expected, timeout=20.0):
+            """Outputs (reference sent) until three are not the no-reference one; all must be ``expected``."""
+            end = time.monotonic() + timeout
+            seen = 0
+            while time.monotonic() < end and seen < 3:
+                for u in drive(bus, stamps(3), qd=qd).values():
+                    if np.allclose(u, hold_only, rtol=0, atol=1e-12):
+                        continue
+                    np.testing.assert_allclose(u, expected, rtol=0, atol=1e-9)
+                    seen += 1
+            assert seen
+
+        # the controller of the previous class is gone from the graph
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+        a = start_controller(tmp_path / "a")
+        b = None
+        try:
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+                            30), a.log.read_text()
+            settle(track)
+            # the monitor stops (a /joint_states lacking a joint)
+            bus.send_y(stamps(1)[0], [JOINTS[0]], [0.0])
+            assert bus.wait(lambda: bus.active_stops())
+            assert bus.active_stops()[0].kind == "name_mismatch"
+            assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), brake), 15)
+            settle(brake)
+            # a late subscriber sees it
+            late = []
+            sub = bus.caller.create_subscription(SafeStop, "safe_stop", late.append, SAFE_STOP_QOS)
+            end = time.monotonic() + 15
+            while not late and time.monotonic() < end:
+                rclpy.spin_once(bus.caller, timeout_sec=0.05)
+            bus.caller.destroy_subscription(sub)
+            assert late and late[-1].active and late[-1].kind == "name_mismatch"
+            # the controller restarts: the new one brakes from its first output on
+            launch.stop([a])
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+            b = start_controller(tmp_path / "b")
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+                            30), b.log.read_text()
+            assert bus.wait(lambda: len(bus.caller.get_subscriptions_info_by_topic("/safe_stop")) >= 2, 15)
+            time.sleep(1.0)
+            ts = stamps(10)
+            got = drive(bus, ts, qd=qd, reference=False)
+            assert got and all(np.allclose(u, brake, rtol=0, atol=1e-9) for u in got.values()), got
+            # more faults do not re-publish; conformant data does not clear it
+            bus.send_y(stamps(1)[0], ["x"], [0.0])
+            Y, U = stream(30, seed=12)
+            bus.send_ticks(stamps(30), Y, U)
+            time.sleep(0.5)
+            assert len(bus.active_stops()) == 1 and all(s.active for s in bus.stops)
+            settle(brake)
+            # only the reset service clears it: the controller tracks again
+            assert bus.call_trigger("/monitor_node/reset").success
+            assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset")
+            assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15)
+            assert a.proc.returncode is not None and b.alive() and mproc.alive()
+        finally:
+            launch.stop([a, b])
+
+
+def outputs_match(got, expected):
+    return bool(got) and all(np.allclose(u, expected, rtol=0, atol=1e-9) for u in got.values())
