@@ -207,6 +207,9 @@ class ReadReport:
     invalid_samples: dict = field(default_factory=dict)
     gaps: dict = field(default_factory=dict)
     ignored_joints: list = field(default_factory=list)
+    #: per topic: messages whose joint-name list (names and order) differs from the first
+    #: message's (joints reordered, added or left out); paired by name, so only reported
+    name_list_changes: dict = field(default_factory=dict)
 
     def as_dict(self):
         return {k: v for k, v in self.__dict__.items()}
@@ -222,7 +225,8 @@ class _TopicColumns:
 
     ``stamps[name]`` (``array('q')``) and ``values[name]`` (``array('d')``) per joint;
     ``order``: joint names in order of first appearance; ``count``: messages;
-    ``out_of_order``: messages whose header stamp is older than an earlier one's.
+    ``out_of_order``: messages whose header stamp is older than an earlier one's;
+    ``name_changes``: messages whose joint-name list differs from the first message's.
     """
 
     def __init__(self):
@@ -231,11 +235,17 @@ class _TopicColumns:
         self.order = []
         self.count = 0
         self.out_of_order = 0
+        self.name_changes = 0
         self._last = None
+        self._first_names = None
 
     def add(self, stamp, names, values):
         """Append one message (used for single messages; bulk reading fills the arrays directly)."""
         self.count += 1
+        if self._first_names is None:
+            self._first_names = tuple(names)
+        elif tuple(names) != self._first_names:
+            self.name_changes += 1
         if self._last is not None and stamp < self._last:
             self.out_of_order += 1
         self._last = stamp if self._last is None else max(self._last, stamp)
@@ -563,6 +573,13 @@ class _Sink:
             rank[order] = np.arange(N)
             s = stamps[order]
         cols.count = N
+        first_names, at = None, 0
+        for g in groups:                # the names of the first message in arrival order
+            n = len(g[3])
+            if n and int(rank[at:at + n].min()) == 0:
+                first_names = g[4]
+            at += n
+        cols.name_changes = sum(len(g[3]) for g in groups if g[4] != first_names)
         cols.out_of_order = int(np.count_nonzero(s[1:] < np.maximum.accumulate(s)[:-1])) if N > 1 else 0
         cols._last = int(s.max())
         first, parts, at = {}, {}, 0
@@ -656,6 +673,8 @@ def _indexed_records(f, ci, B):
         return None
     start = min(ci.message_index_offsets.values())
     f.seek(start)
+    if start + ci.message_index_length > os.fstat(f.fileno()).st_size:
+        return None
     region = f.read(ci.message_index_length)
     if len(region) != ci.message_index_length:
         return None
@@ -753,7 +772,13 @@ def _read_mcap_file(fpath, src, wanted, sinks):
                 chunk = Chunk.read(ReadDataStream(f))
             except Exception as e:  # noqa: BLE001
                 raise _Damaged(f"chunk at offset {ci.chunk_start_offset}: {type(e).__name__}: {e}") from None
-            data = _decompress(chunk)
+            try:
+                data = _decompress(chunk)
+            except _Damaged:
+                raise
+            except Exception as e:  # noqa: BLE001 (zstd/lz4 errors, a huge damaged size)
+                raise _Damaged(f"chunk at offset {ci.chunk_start_offset}: {type(e).__name__}"
+                               + (f": {str(e).splitlines()[0]}" if str(e) else "")) from e
             B = np.frombuffer(data, dtype=np.uint8)
             recs = _indexed_records(f, ci, B)
             if recs is None:
@@ -778,21 +803,45 @@ def _read_mcap_file(fpath, src, wanted, sinks):
 
 
 def _storage_files(path):
-    meta = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    return meta["storage_identifier"], [path / Path(x).name for x in meta["relative_file_paths"]]
+    """Storage plugin and storage files of a bag from its ``metadata.yaml``.
+
+    Raises :class:`ReachsetError` naming ``metadata.yaml`` when it is not readable text,
+    not YAML, or lacks the storage entries; rosbags checks the rest.
+    """
+    def bad(why):
+        return ReachsetError(f"{path}: unreadable bag (metadata.yaml: {why})")
+    try:
+        meta = yaml.safe_load((path / "metadata.yaml").read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise bad(f"not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise bad("does not parse as YAML" + (f" (line {mark.line + 1})" if mark else "")) from None
+    except (OSError, RecursionError) as e:
+        raise bad(type(e).__name__) from None
+    info = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
+    if not isinstance(info, dict):
+        raise bad("no rosbag2_bagfile_information mapping")
+    storage, rel = info.get("storage_identifier"), info.get("relative_file_paths")
+    if not isinstance(storage, str):
+        raise bad("no storage_identifier")
+    if not isinstance(rel, list) or not rel or not all(isinstance(x, str) and x for x in rel):
+        raise bad("no relative_file_paths")
+    return storage, [path / Path(x).name for x in rel]
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _preflight(path):
-    """Name a truncated or foreign MCAP storage file before rosbags reports it without a name."""
-    try:
-        storage, files = _storage_files(path)
-    except Exception:  # noqa: BLE001 (rosbags reports bad metadata)
-        return
+    """Check ``metadata.yaml`` and name a missing, truncated or foreign MCAP storage file
+    before rosbags reports it without a name; returns the storage files."""
+    storage, files = _storage_files(path)
+    for fpath in files:
+        if not fpath.is_file():
+            raise ReachsetError(f"{path}: unreadable bag ({fpath.name} listed in metadata.yaml is missing)")
     if storage != "mcap":
-        return
+        return files
     for fpath in files:
         if fpath.suffix != ".mcap" or not fpath.is_file():
             continue
@@ -806,6 +855,7 @@ def _preflight(path):
         if size < 16 or tail != _MCAP_MAGIC:
             raise ReachsetError(f"{path}: unreadable bag ({fpath.name}: truncated MCAP file, no end magic; "
                                 "`mcap recover` may rescue its messages)")
+    return files
 
 
 # ------------------------------------------------------------------ rosbags (sqlite3 and the rest)
@@ -866,11 +916,17 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
     for p in paths:
         path = Path(p)
         _check_bag_path(path)
+        where = "metadata.yaml"
         try:
-            _preflight(path)
-            with Reader(path) as reader:
+            files = _preflight(path)
+            reader = Reader(path)               # reads metadata.yaml
+            where = ", ".join(f.name for f in files)
+            with reader:                        # opens the storage files
                 types = {}
                 for c in reader.connections:
+                    if not (isinstance(c.topic, str) and isinstance(c.msgtype, str)):
+                        raise ReachsetError(f"{path}: unreadable bag (metadata.yaml: bad topic entry "
+                                            f"{c.topic!r} of type {c.msgtype!r})")
                     types.setdefault(c.topic, c.msgtype)
                 for t in topics:
                     if t not in types:
@@ -898,8 +954,11 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
             msg = str(e)
             raise ReachsetError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
         except Exception as e:  # rosbags raises many types for damaged files
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise ReachsetError(f"{path}: unreadable bag ({type(e).__name__}: {first})") from e
+            first = str(e).splitlines()[0] if str(e) else ""
+            if isinstance(e, MemoryError):
+                first = "a record larger than the memory (damaged length field?)"
+            raise ReachsetError(f"{path}: unreadable bag ({where}: {type(e).__name__}"
+                                + (f": {first})" if first else ")")) from e
     out = {}
     for t, s in sinks.items():
         out[t] = s.columns()
@@ -996,7 +1055,8 @@ def read_joint_series(paths, joints=None, dt=0.004):
         out[n] = JointSeries(n, *arrs, tuple(segs), dt)
     rep = ReadReport()
     for _, r in parts:
-        for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps"):
+        for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps",
+                    "name_list_changes"):
             acc = getattr(rep, key)
             for k, v in getattr(r, key).items():
                 acc[k] = acc.get(k, 0) + v
@@ -1011,6 +1071,7 @@ def _read_one(path, joints, dt):
     rep = ReadReport()
     rep.messages = {JOINT_STATES: js.count, PLANT_INPUT: pi.count}
     rep.out_of_order = {JOINT_STATES: js.out_of_order, PLANT_INPUT: pi.out_of_order}
+    rep.name_list_changes = {JOINT_STATES: js.name_changes, PLANT_INPUT: pi.name_changes}
     common = [n for n in js.order if n in pi.stamps]
     if joints is None or list(joints) == ["all"]:
         joints = common

@@ -43,7 +43,7 @@ class Estimator:
 
     @classmethod
     def from_dict(cls, d):
-        if not isinstance(d, dict) or d.get("name") not in ESTIMATORS:
+        if not isinstance(d, dict) or not isinstance(d.get("name"), str) or d["name"] not in ESTIMATORS:
             raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
         return cls(d["name"])
 

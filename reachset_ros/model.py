@@ -73,8 +73,10 @@ def plant_from_spec(spec):
         if kind == "matrices":
             return LinearPlant(A=spec["A"], B=spec["B"], C=spec["C"], D=spec.get("D"),
                                Gw=spec["Gw"], Gv=spec["Gv"], dt=float(spec.get("dt", 0.004)))
-    except (KeyError, ValueError, TypeError) as e:
-        raise ReachsetError(f"model: bad plant: {e}") from e
+    except KeyError as e:
+        raise ReachsetError(f"model: bad plant: no {e.args[0]} given") from None
+    except (ValueError, TypeError) as e:
+        raise ReachsetError(f"model: bad plant: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from e
     raise ReachsetError(f"model: unknown plant kind {kind!r} (lwa4p_joint or matrices)")
 
 
@@ -101,6 +103,20 @@ def _floats(v, name, n=None):
     if not all(math.isfinite(x) for x in a):
         raise ReachsetError(f"model: {name} must be finite, got {a}")
     return tuple(a)
+
+
+def _int(v, name):
+    if isinstance(v, int) and not isinstance(v, bool):
+        return v
+    if isinstance(v, bool) or not isinstance(v, (float, str)):
+        raise ReachsetError(f"model: {name} must be an integer, got {v!r}")
+    try:
+        f = float(v)
+    except ValueError:
+        raise ReachsetError(f"model: {name} must be an integer, got {v!r}") from None
+    if not (math.isfinite(f) and f == int(f)):
+        raise ReachsetError(f"model: {name} must be an integer, got {v!r}")
+    return int(f)
 
 
 def _fl(v):
@@ -132,10 +148,7 @@ def from_dict(d, source="model") -> ConformanceModel:
         raise ReachsetError(f"{source}: unknown format {d.get('format')!r}, expected {FORMAT}")
     plant = plant_from_spec(d.get("plant"))
     est = Estimator.from_dict(d.get("estimator", {"name": "fd"}))
-    try:
-        horizon = int(d.get("horizon", 125))
-    except (TypeError, ValueError):
-        raise ReachsetError(f"{source}: horizon must be an integer") from None
+    horizon = _int(d.get("horizon", 125), "horizon")
     if horizon < 0:
         raise ReachsetError(f"{source}: horizon must be >= 0")
     inflation = _floats(d.get("inflation", 0.0), "inflation", 1)[0]
@@ -159,8 +172,9 @@ def from_dict(d, source="model") -> ConformanceModel:
         gains = j.get("gains", {}) or {}
         if not isinstance(gains, dict):
             raise ReachsetError(f"{source}: joint {name}: gains must be a mapping")
-        joints[str(name)] = JointSets(aw, av, cw, cv, int(j.get("test_cases", 0)),
-                                      int(j.get("horizon", horizon)), gains, j.get("extra", {}) or {})
+        joints[str(name)] = JointSets(aw, av, cw, cv, _int(j.get("test_cases", 0), f"joint {name} test_cases"),
+                                      _int(j.get("horizon", horizon), f"joint {name} horizon"), gains,
+                                      j.get("extra", {}) or {})
     return ConformanceModel(plant, dict(d["plant"]), est, horizon, joints, inflation,
                             d.get("provenance", {}) or {})
 
@@ -173,7 +187,13 @@ def load(path) -> ConformanceModel:
         d = yaml.safe_load(p.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         raise ReachsetError(f"{p}: model file does not parse ({type(e).__name__})") from None
-    return from_dict(d, str(p))
+    except OSError as e:
+        raise ReachsetError(f"{p}: model file not readable ({e.strerror or type(e).__name__})") from None
+    try:
+        return from_dict(d, str(p))
+    except ReachsetError as e:           # every message names the file
+        msg = str(e)
+        raise ReachsetError(msg if msg.startswith(str(p)) else f"{p}: {msg.removeprefix('model: ')}") from None
 
 
 def save(model: ConformanceModel, path):

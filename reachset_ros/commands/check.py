@@ -2,7 +2,7 @@
 from .. import conformance as cf
 from .. import model as mdl
 from . import emit
-from ._bagargs import add_bag_arguments, load_series
+from ._bagargs import add_bag_arguments, load_series, require_horizon
 
 NAME = "check"
 HELP = "check bags for reachset conformance against a model (batch, vectorised)"
@@ -25,6 +25,7 @@ def joint_result(stamps, res):
 def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints))
+    require_horizon(series, model.estimator.history, model.horizon, args.bags)
     thm = cf.Theorem1.build(model.plant, model.horizon)
     joints = {}
     for name, s in series.items():

@@ -8,7 +8,7 @@ from .. import model as mdl
 from ..errors import ReachsetError
 from ..monitor import JointMonitor, Monitor, MonitorModel
 from . import emit
-from ._bagargs import add_bag_arguments, load_series
+from ._bagargs import add_bag_arguments, load_series, require_horizon
 
 NAME = "replay"
 HELP = "replay bags through the online monitor core tick by tick (same verdicts as check)"
@@ -68,6 +68,7 @@ def replay_joints(model, series, thm=None):
 def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints))
+    require_horizon(series, model.estimator.history, model.horizon, args.bags)
     thm = cf.Theorem1.build(model.plant, model.horizon)
     missing = [n for n in series if n not in model.joints]
     if missing:
