@@ -218,3 +218,122 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
         launch.stop([mon])
         ex.shutdown()
         listener.destroy_node()
+
+
+# ------------------------------------------------------------------ closed loop: braking, bag = check
+ALL_JOINTS = [f"arm_{i}_joint" for i in range(1, 7)]
+INITIAL_GAINS = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0], "h1": [15.0],
+                 "h2": [30.0], "eps": [0.01]}
+
+
+class Recorder:
+    """Subscriptions spun by their own executor thread (nothing missed while the test waits)."""
+
+    def __init__(self, name, topics):
+        import threading
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
+        self.node = Node(name)
+        self.msgs = {t: [] for t in topics}
+        for topic, cls in topics.items():
+            qos = SAFE_STOP_QOS if cls is SafeStop else QoSProfile(depth=5000)
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self.msgs[t].append((time.monotonic(), m)),
+                                          qos)
+        self.ex = SingleThreadedExecutor()
+        self.ex.add_node(self.node)
+        threading.Thread(target=self.ex.spin, daemon=True).start()
+
+    def wait(self, cond, timeout):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if cond():
+                return True
+            time.sleep(0.02)
+        return cond()
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.destroy_node()
+
+
+def _ns(m):
+    return m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+
+
+def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_it(ros, tmp_path):
+    """An active /safe_stop while the simulated arm (realistic model error and friction)
+    tracks a moving reference. What controller_node promises (``braking_input``,
+    ``hold_position``): from the first braking tick on, u_p = clip(64 (q_hold - q^) -
+    16 q^d, +-U_p) with q_hold = q^ + q^d |q^d| / U_p fixed at that tick. Checked from
+    /observer/estimate, /plant_input, /effort_commands and /joint_states: every input is
+    that law, within U_p; every torque within the Table I limits; 1.5 s (stamp time) after
+    braking began the arm is at rest, |qd| <= 0.03 rad/s per joint, and holds: it stays
+    within 0.1 rad of q_hold and drifts by at most 30 mrad per joint over the next 2 s.
+    (The wrist joint 5 creeps towards its equilibrium q_hold + d/64: the friction the
+    controller's model underestimates makes the braking PD overdamped there.)"""
+    from std_msgs.msg import Float64MultiArray
+    from reachset_ros.robot import TABLE1_TAU_MAX
+    u_max = np.array([26.0, 26.0, 26.0, 26.0, 100.0, 100.0])
+    rec = Recorder("braking_listener", {"joint_states": JointState, "plant_input": PlantInput,
+                                        "observer/estimate": JointEstimate, "effort_commands": Float64MultiArray})
+    common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    procs = [launch.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
+             launch.start("reference_node", {"seed": 2}, tmp_path),
+             launch.start("observer_node", common, tmp_path),
+             launch.start("controller_node", common, tmp_path)]
+    stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+    try:
+        js = rec.msgs["joint_states"]
+
+        def moving():
+            return len(js) > 250 and max(abs(v) for v in js[-1][1].velocity) > 0.2
+        assert rec.wait(moving, 90), [p.log.read_text()[-500:] for p in procs]
+        t_pub = _ns(js[-1][1])
+        stop = SafeStop(active=True, kind="manual", reason="test: braking law")
+        to_stamp(stop.header.stamp, t_pub)
+        wall_pub = time.monotonic()
+        stop_pub.publish(stop)
+        assert rec.wait(lambda: _ns(js[-1][1]) >= t_pub + 4_500_000_000, 90)
+        # each /plant_input with the estimate it was computed from (same stamp)
+        est = {_ns(m): m for _, m in rec.msgs["observer/estimate"]}
+        ins = sorted((_ns(m), m) for _, m in rec.msgs["plant_input"] if _ns(m) in est)
+        q_hold = onset = None
+        law_err = []
+        for t, m in ins:
+            if t <= t_pub:
+                continue
+            q, qd = np.array(est[t].position), np.array(est[t].velocity)
+            u = np.array(m.acceleration)
+            if q_hold is None:
+                hold = q + qd * np.abs(qd) / u_max
+                if np.allclose(u, np.clip(64 * (hold - q) - 16 * qd, -u_max, u_max), rtol=0, atol=1e-9):
+                    q_hold, onset = hold, t
+            if q_hold is not None:
+                law_err.append(np.abs(u - np.clip(64 * (q_hold - q) - 16 * qd, -u_max, u_max)).max())
+                assert np.all(np.abs(u) <= u_max)
+        assert onset is not None, "no braking tick"
+        assert onset - t_pub < 1_000_000_000
+        assert len(law_err) > 500 and max(law_err) < 1e-9, max(law_err)
+        efforts = np.array([m.data for w, m in rec.msgs["effort_commands"] if w > wall_pub + 0.5])
+        assert len(efforts) > 100 and np.all(np.abs(efforts) <= TABLE1_TAU_MAX), np.abs(efforts).max(axis=0)
+        after = [(t - onset, np.array(m.position), np.array(m.velocity))
+                 for t, m in ((_ns(m), m) for _, m in js) if t >= onset]
+        v0 = np.abs(after[0][2]).max()
+        rest = [(t, p, v) for t, p, v in after if 1_500_000_000 <= t <= 3_500_000_000]
+        assert rest[-1][0] - rest[0][0] >= 1_990_000_000
+        vmax = np.max([np.abs(v) for _, _, v in rest], axis=0)
+        P = np.array([p for _, p, _ in rest])
+        drift = P.max(axis=0) - P.min(axis=0)
+        off = np.max([np.abs(p - q_hold) for _, p, _ in after], axis=0)
+        print(f"braking from |qd| = {v0:.3f} rad/s; after 1.5 s |qd| <= {vmax.round(4).tolist()} rad/s, drift over 2 s "
+              f"{(drift * 1e3).round(2).tolist()} mrad, |q - q_hold| <= {(off * 1e3).round(1).tolist()} mrad, "
+              f"|tau| <= {np.abs(efforts).max(axis=0).round(1).tolist()} N m")
+        assert v0 > 0.1                       # it was moving when braking began
+        assert np.all(vmax <= 0.03), vmax
+        assert np.all(off <= 0.1), off
+        assert np.all(drift <= 0.03), drift
+        assert all(p.alive() for p in procs)
+    finally:
+        launch.stop(procs)
+        rec.close()
+        ros.destroy_publisher(stop_pub)
