@@ -337,3 +337,82 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
         launch.stop(procs)
         rec.close()
         ros.destroy_publisher(stop_pub)
+
+
+def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tmp_path):
+    """sim + reference + observer + controller + monitor + recorder as processes; a fault
+    injected through sim_node's parameters; the bag recorded. `reachset check` on that bag
+    finds its first violation at exactly the stamp of the first non-conformant
+    /conformance/status in the bag (the fault comes > k* + history ticks after the
+    recording started, so no test case of either began before the recording)."""
+    import json
+    import subprocess
+    import sys
+    from rosbags.highlevel import AnyReader
+    from std_msgs.msg import Header
+    from reachset_ros.bags import typestore
+    from reachset_ros.nodes.demo_driver import MONITOR_TOPICS
+    p = lwa4p_joint_plant()
+    horizon = 125
+    # about 3x the sets identified on 15 s of this closed loop (alpha_w <= 1.9, alpha_v <= 3.6e-4)
+    js = {j: mdl.JointSets((6.0, 0.0), (1e-3,), (0.0,) * 5, (0.0,), 0, horizon) for j in ALL_JOINTS}
+    model = tmp_path / "model.yaml"
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), model)
+    bag = tmp_path / "run"
+    rec = Recorder("bagcheck_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop,
+                                         "sim/fault_onset": Header})
+    common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    procs = [launch.start("recorder_node", {"output": str(bag), "topics": MONITOR_TOPICS}, tmp_path),
+             launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
+                                           "window_dir": str(tmp_path / "windows")}, tmp_path),
+             launch.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
+             launch.start("reference_node", {"seed": 3}, tmp_path),
+             launch.start("observer_node", common, tmp_path),
+             launch.start("controller_node", common, tmp_path)]
+    try:
+        status = rec.msgs["conformance/status"]
+        assert rec.wait(lambda: len(status) > 0 and "recorder_node" in ros.get_node_names(), 90), \
+            [p.log.read_text()[-800:] for p in procs]
+        t_first = _ns(status[0][1])
+        # > k* + history + 1 ticks of checked, recorded data before the fault
+        assert rec.wait(lambda: _ns(status[-1][1]) > t_first + 2_000_000_000, 60)
+        ok, why = set_remote_parameters(ros, "sim_node", {"fault_joint": "arm_1_joint", "fault_magnitude": 100.0,
+                                                           "fault": "acceleration"})
+        assert ok, why
+        assert rec.wait(lambda: any(m.active for _, m in rec.msgs["safe_stop"]), 30)
+        time.sleep(0.5)
+        launch.stop(procs[:1])                      # the recorder closes the bag
+        assert procs[0].proc.returncode == 0 and (bag / "metadata.yaml").is_file(), procs[0].log.read_text()
+    finally:
+        launch.stop(procs)
+        rec.close()
+    out = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "check", str(bag), "--model", str(model),
+                          "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    chk = json.loads(out.stdout)
+    first_check = min((j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"]),
+                      default=None)
+    ts = typestore()
+    verdicts, stops, onset = [], [], None
+    with AnyReader([bag], default_typestore=ts) as reader:
+        conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop", "/sim/fault_onset")]
+        for c, _t, raw in reader.messages(connections=conns):
+            m = ts.deserialize_cdr(raw, c.msgtype)
+            h = m if c.topic == "/sim/fault_onset" else m.header
+            st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+            if c.topic == "/conformance/status":
+                verdicts.append((st, bool(m.conformant)))
+            elif c.topic == "/safe_stop":
+                stops.append((st, bool(m.active), m.kind))
+            else:
+                onset = st
+    first_monitor = min((s for s, ok in verdicts if not ok), default=None)
+    active = sorted(s for s, a, _ in stops if a)
+    print(f"fault onset {onset}, first violation: monitor {first_monitor}, check {first_check}, "
+          f"{(first_monitor - onset) / 1e6 if first_monitor and onset else None} ms after the onset; "
+          f"{len(verdicts)} statuses, check: {sum(j['violations'] for j in chk['joints'].values())} violating ticks")
+    assert onset is not None and first_monitor is not None
+    assert first_monitor >= onset                     # no false alarm before the fault
+    assert first_check == first_monitor
+    assert active and active[0] == first_monitor      # and that tick is the safe stop
+    assert not chk["conformant"]
