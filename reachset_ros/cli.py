@@ -45,7 +45,7 @@ def main(argv=None):
         parser.print_help()
         return 2
     try:
-        args._run(args)
+        rc = args._run(args)
     except ReachsetError as e:
         if args.debug:
             raise
@@ -54,7 +54,7 @@ def main(argv=None):
         return 2
     except KeyboardInterrupt:
         return 130
-    return 0
+    return int(rc or 0)
 
 
 if __name__ == "__main__":

@@ -198,34 +198,56 @@ def _read_topics(bag, topics):
     return out
 
 
+def demo_tracking(data, syn, until):
+    """Measured tracking errors of the demo's monitored run (before ``until``) against R_e.
+
+    The error is the observer's estimate minus the reference (position, velocity), as the
+    controller sees it; R_e is the synthesis' guaranteed set (interval hull radius). Returns
+    {joint: {"max_abs_error": [q, qdot], "re_radius": [q, qdot], "share_inside": float,
+    "ticks": int}} and the per-joint error arrays.
+    """
+    est, ref = data["/observer/estimate"], data["/reference"]
+    stamps = sorted(s for s in est if s in ref and s < until)
+    stats, errors = {}, {}
+    if not stamps:
+        return stats, errors
+    for name, j in syn.items():
+        def idx(msg):
+            return list(msg.name).index(name)
+        e = np.array([[est[s].position[idx(est[s])] - ref[s].position[idx(ref[s])],
+                       est[s].velocity[idx(est[s])] - ref[s].velocity[idx(ref[s])]] for s in stamps])
+        r = [float(x) for x in j["re_radius"][:2]]
+        inside = (np.abs(e[:, 0]) <= r[0]) & (np.abs(e[:, 1]) <= r[1])
+        stats[name] = {"max_abs_error": np.abs(e).max(axis=0).tolist(), "re_radius": r,
+                       "share_inside": float(inside.mean()), "ticks": len(stamps)}
+        errors[name] = e
+    return stats, errors
+
+
 def demo_plots(res, record, workdir):
     """Figures of ``reachset demo``: per joint the measured tracking errors of the monitored
     run (before the fault) against the guaranteed R_e, and the monitor's margins over time
-    with the fault and the safe stop marked. Returns the PNG paths."""
+    with the fault and the safe stop marked. Returns the PNG paths and :func:`demo_tracking`'s
+    statistics."""
     plt = _plt()
     outdir = Path(workdir) / "plots"
     outdir.mkdir(parents=True, exist_ok=True)
     data = _read_topics(record, ["/observer/estimate", "/reference", "/conformance/status"])
-    est, ref, status = data["/observer/estimate"], data["/reference"], data["/conformance/status"]
+    status = data["/conformance/status"]
     fault = res.get("fault_injected_ns")
     stop = res.get("safe_stop_ns")
     until = min(x for x in (fault, stop, float("inf")) if x is not None)
     syn = (res.get("reidentify") or res.get("synthesis") or {}).get("joints", {})
-    stamps = sorted(s for s in est if s in ref and s < until)
+    stats, errors = demo_tracking(data, syn, until)
     paths = []
-    names = list(syn)
-    if names and stamps:
+    names = list(errors)
+    if names:
         fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7))
         for ax, name in zip(np.ravel(axes), names):
-            j = syn[name]
-            e = np.array([[est[s].position[list(est[s].name).index(name)] - ref[s].position[list(ref[s].name).index(name)],
-                           est[s].velocity[list(est[s].name).index(name)] - ref[s].velocity[list(ref[s].name).index(name)]]
-                          for s in stamps])
-            r = j["re_radius"]
+            j, e, r = syn[name], errors[name], stats[name]["re_radius"]
             _box(ax, [0.0, 0.0], r, edgecolor="tab:blue", linewidth=2, label="R_e (guaranteed)")
             ax.plot(e[:, 0], e[:, 1], ".", ms=1, color="tab:red", label="measured")
-            inside = np.mean((np.abs(e[:, 0]) <= r[0]) & (np.abs(e[:, 1]) <= r[1]))
-            ax.set_title(f"{name}: ||R_e|| = {j['re_norm']:.3g}, {inside:.1%} inside", fontsize=9)
+            ax.set_title(f"{name}: ||R_e|| = {j['re_norm']:.3g}, {stats[name]['share_inside']:.1%} inside", fontsize=9)
             ax.set_xlabel("q error [rad]")
             ax.set_ylabel("qdot error [rad/s]")
             ax.set_xlim(-1.2 * r[0], 1.2 * r[0])
@@ -251,7 +273,7 @@ def demo_plots(res, record, workdir):
         p = outdir / "demo_monitor_margins.png"
         _save(plt, fig, p)
         paths.append(str(p))
-    return paths
+    return paths, stats
 
 
 def plot_deviations(directory, name, model, thm, devs):

@@ -8,6 +8,7 @@ the monitor; 4. a monitored run (recorded to ``--record``) into which a fault is
 injected; the monitor stops the arm. Prints a summary and writes plots.
 """
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,7 +33,7 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated arm and the reference")
     p.add_argument("--fault", default="acceleration:arm_1_joint:30",
                    help="KIND:JOINT:MAGNITUDE (kinds: acceleration, torque, payload, bias, frozen, nan)")
-    p.add_argument("--margin", type=float, default=0.5,
+    p.add_argument("--margin", type=float, default=1.0,
                    help="inflation of the identified sets used by the monitor (model 'inflation'): fewer "
                         "false alarms on motions the training runs did not cover, slower detection")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -66,8 +67,25 @@ def run(args):
     summary = summarize(res, record, workdir)
     summary["wall_time_s"] = time.monotonic() - t0
     summary["workdir"] = str(workdir)
+    summary["failures"] = story_failures(summary, fault_at is not None and fault_at < args.duration)
     (workdir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     emit(args, summary, human_summary(summary))
+    if summary["failures"]:
+        print("reachset demo: the story did not hold: " + "; ".join(summary["failures"]), file=sys.stderr)
+        return 1
+    return 0
+
+
+def story_failures(s, fault_expected):
+    """What went wrong in the monitored run (empty if nothing): exit status 1 then."""
+    out = []
+    if s["early_stop"] or s["safe_stop_before_fault"]:
+        out.append(f"safe stop before the fault ({(s['early_stop'] or s['safe_stop'] or {}).get('reason')})")
+    elif fault_expected and s["fault_injected_ns"] is None:
+        out.append("the fault was not injected")
+    elif fault_expected and s["safe_stop_ns"] is None:
+        out.append("no safe stop after the fault")
+    return out
 
 
 def summarize(res, record, workdir):
@@ -105,10 +123,15 @@ def summarize(res, record, workdir):
         "synthesis": res.get("synthesis"), "reidentify": res.get("reidentify"),
         "record": str(record), "early_stop": res.get("early_stop"),
         "monitor_model": res.get("monitor_model"), "margin": res.get("margin"),
+        "ticks_monitored": int(len(before)),
+        "gains_before": (res.get("phases") or [{}])[0].get("gains"),
+        "gains_after": {n: j["gains"] for n, j in ((res.get("reidentify") or res.get("synthesis") or {})
+                                                   .get("joints", {}).items())},
+        "second_iteration_failed": res.get("second_iteration_failed"),
     }
     try:
         from ..plots import demo_plots
-        out["plots"] = demo_plots(res, record, workdir)
+        out["plots"], out["tracking"] = demo_plots(res, record, workdir)
     except Exception as e:  # plots are a convenience; never fail the demo for them
         out["plots_error"] = f"{type(e).__name__}: {e}"
     return out
@@ -121,7 +144,13 @@ def human_summary(s):
         lines.append(f"{name}: gains {j['gains']}  ||R_e|| = {j['re_norm']:.4g}  R_u = [{j['ru'][0]:.3g}, "
                      f"{j['ru'][1]:.3g}]  alpha_w = {np.round(j['alpha_w'], 5).tolist()} "
                      f"alpha_v = {np.round(j['alpha_v'], 7).tolist()}")
-    lines.append(f"status messages: {s['status_messages']} at {s['status_rate_hz_until_stop']:.1f} Hz until the stop")
+    lines.append(f"gains before: {s.get('gains_before')}")
+    for name, t in (s.get("tracking") or {}).items():
+        lines.append(f"{name}: measured |e| max q {t['max_abs_error'][0]:.3g} rad, qdot {t['max_abs_error'][1]:.3g} "
+                     f"rad/s; R_e radius {t['re_radius'][0]:.3g}, {t['re_radius'][1]:.3g}; "
+                     f"{t['share_inside']:.1%} of {t['ticks']} ticks inside")
+    lines.append(f"ticks monitored until the stop: {s['ticks_monitored']}; status messages: {s['status_messages']} "
+                 f"at {s['status_rate_hz_until_stop']:.1f} Hz until the stop")
     lines.append(f"fault: {s['fault']} at stamp {s['fault_injected_ns']}")
     if s["safe_stop"]:
         lines.append(f"safe stop at {s['safe_stop_ns']} ({s['detection_latency_ms']} ms after the fault): "

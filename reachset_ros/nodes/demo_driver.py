@@ -56,7 +56,8 @@ class DemoDriver(Node):
 
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
-             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None, margin=0.5):
+             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None, margin=1.0,
+             settle=3.0):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
@@ -125,6 +126,9 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             out["reidentify"] = out["synthesis"]
             log(f"[demo] second iteration not applied ({res2.message}); keeping the first iteration's "
                 "gains and model")
+        # let the transient of the live gain change settle before monitoring starts: the
+        # switch itself (estimates and commands jump) is not a motion the training covered
+        driver.spin_for(settle)
         # the monitor gets the model with the demo's safety margin (inflation of the sets)
         from .. import model as mdl
         from dataclasses import replace
