@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.srv import GetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -537,21 +537,49 @@ class TestMonitorNode:
         assert ticks == list(range(ticks[0], ticks[0] + len(ticks)))
         self.alive_and_checking(bus, proc)
 
-    def test_plant_input_never_arriving_is_missing_data(self, bus, mon):
+    def test_plant_input_not_yet_arriving_is_reported_not_a_stop(self, bus, mon):
+        """/joint_states flows, /plant_input has never come (a controller still starting):
+        the monitor waits, says so on /diagnostics and counts the half ticks it drops; once
+        /plant_input comes it checks every tick."""
         proc, _, _ = mon
         ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})
         assert ok, why
-        Y, _ = stream(5000, seed=8)
+        before = bus.counters()
+        Y, U = stream(700, seed=8)
+        ts = stamps(700)
+        t_start = time.monotonic()
+        for k in range(500):                       # 1 s and more: five times the watchdog's limit
+            bus.send_y(ts[k], JOINTS, Y[k])
+            time.sleep(0.002)
+        assert time.monotonic() - t_start > 1.0
+        c = bus.counters()                          # a fresh /diagnostics message
+        level, message = bus.diags["reachset_ros: conformance monitor"][:2]
+        assert not bus.active_stops()
+        assert (level, message) == (DiagnosticStatus.WARN, "waiting for /plant_input")
+        assert c["dropped_incomplete"] - before.get("dropped_incomplete", 0) > 0
+        assert c.get("ticks", 0) == before.get("ticks", 0)
+        bus.send_ticks(ts[500:], Y[500:], U[500:])
+        assert bus.wait(lambda: len(bus.statuses(ts)) == 200)
+        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+        self.alive_and_checking(bus, proc)
+
+    def test_stamps_that_never_pair_are_missing_data(self, bus, mon):
+        """Both topics arrive, but /plant_input is stamped half a period off (a controller
+        stamping with its own clock): no tick ever completes, a safe stop says why."""
+        proc, _, _ = mon
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})
+        assert ok, why
+        Y, U = stream(5000, seed=13)
         ts = stamps(5000)
         for k, t in enumerate(ts):
             bus.send_y(t, JOINTS, Y[k])
+            bus.send_u(t + DT_NS // 2, JOINTS, U[k])
             time.sleep(0.002)
             if bus.active_stops():
                 break
         stops = bus.active_stops()
         assert stops and stops[0].kind == "missing_data", stops
-        assert "/plant_input never received" in stops[0].reason, stops[0].reason
-        assert "limit 200 ms" in stops[0].reason
+        assert "limit 200 ms" in stops[0].reason and "stamps do not pair" in stops[0].reason, stops[0].reason
         assert not bus.statuses(ts)
         self.alive_and_checking(bus, proc)
 

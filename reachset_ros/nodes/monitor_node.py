@@ -187,7 +187,7 @@ class MonitorNode(Node):
         self.stop_msg = None
         self.last_tick_wall = None
         self.last_rx_wall = {}        # topic kind ("y", "u") -> wall time of its last message
-        self.first_rx_wall = None     # first message since the model was loaded or the stop reset
+        self.first_rx_wall = {}       # topic kind -> its first message since the model was loaded / reset
         self.counters = collections.Counter()   # node-level: messages ignored without a model
         self.model_id = ""
         self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", STATUS_QOS)
@@ -222,7 +222,7 @@ class MonitorNode(Node):
         self.model_id = model_id
         self.last_tick_wall = None
         self.last_rx_wall.clear()
-        self.first_rx_wall = None
+        self.first_rx_wall.clear()
         self.get_logger().info(f"monitoring joints {core.joints} with model {path} (k*={core.model.horizon})")
 
     def load(self, path, joints=None):
@@ -261,8 +261,7 @@ class MonitorNode(Node):
             return
         now = time.monotonic()
         self.last_rx_wall[kind] = now
-        if self.first_rx_wall is None:
-            self.first_rx_wall = now
+        self.first_rx_wall.setdefault(kind, now)
         self.handle_events(self.core.add(kind, stamp_ns(stamp), list(names), list(values)))
 
     def handle_events(self, events):
@@ -337,34 +336,35 @@ class MonitorNode(Node):
         return str(out)
 
     def watchdog(self):
-        """Missing data: no complete tick for ``max_missing_ticks`` periods (wall time) once
-        any data came, i.e. also when one topic never arrives. Before the first message
-        of either topic the monitor waits (diagnostics: WARN, waiting for data)."""
+        """Missing data: no complete tick for ``max_missing_ticks`` periods (wall time), once
+        the loop has started, i.e. since the last tick or, before the first one, since both
+        topics have delivered a message (so a topic that goes silent, or two topics whose
+        stamps never pair, end in a safe stop). While a topic has never arrived the monitor
+        waits and says so on /diagnostics (WARN): a controller still starting is no fault."""
         if self.core is None or self.stop_active:
             return
-        since = self.last_tick_wall if self.last_tick_wall is not None else self.first_rx_wall
+        since = self.last_tick_wall
         if since is None:
-            return
+            if len(self.first_rx_wall) < len(TOPIC):
+                return
+            since = max(self.first_rx_wall.values())
         limit = self.get_parameter("max_missing_ticks").value * self.get_parameter("dt").value
         now = time.monotonic()
         silent = now - since
         if silent > limit:
             stamp = self.core.last_stamp or max(self.core.topic_last.values(), default=0) \
                 or self.get_clock().now().nanoseconds
-            detail = []
-            for kind, topic in TOPIC.items():
-                t = self.last_rx_wall.get(kind)
-                if t is None:
-                    detail.append(f"{topic} never received")
-                elif now - t > limit:
-                    detail.append(f"{topic} silent for {(now - t) * 1000:.0f} ms")
+            detail = [f"{topic} silent for {(now - self.last_rx_wall[kind]) * 1000:.0f} ms"
+                      for kind, topic in TOPIC.items() if now - self.last_rx_wall[kind] > limit]
+            if not detail:
+                detail.append("both topics arrive but their stamps do not pair")
             skipped = {k: v for k, v in self.core.counters.items()
                        if k.startswith(("stale_", "duplicate_", "dropped_", "rejected_")) and v}
             if skipped:
                 detail.append("skipped so far: " + ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())))
             self.trigger(stamp, "missing_data",
                          f"no complete /joint_states + /plant_input sample for {silent * 1000:.0f} ms "
-                         f"(limit {limit * 1000:.0f} ms)" + (": " + "; ".join(detail) if detail else ""))
+                         f"(limit {limit * 1000:.0f} ms): " + "; ".join(detail))
 
     def on_reset(self, request, response):
         was = self.stop_active
@@ -373,7 +373,7 @@ class MonitorNode(Node):
             self.core.reset()
         self.last_tick_wall = None
         self.last_rx_wall.clear()
-        self.first_rx_wall = None
+        self.first_rx_wall.clear()
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()
         m.active, m.kind, m.reason = False, "reset", "reset through ~/reset"
@@ -392,7 +392,10 @@ class MonitorNode(Node):
         elif self.stop_active:
             st.level, st.message = DiagnosticStatus.ERROR, f"safe stop: {self.stop_msg.reason}"
         elif self.last_tick_wall is None:
-            st.level, st.message = DiagnosticStatus.WARN, "waiting for /joint_states and /plant_input"
+            never = [topic for kind, topic in TOPIC.items() if kind not in self.first_rx_wall]
+            st.level = DiagnosticStatus.WARN
+            st.message = ("waiting for " + " and ".join(never) if never
+                          else "no tick yet: /joint_states and /plant_input arrive but no stamps paired")
         else:
             st.level, st.message = DiagnosticStatus.OK, "conformant"
         counts = collections.Counter(self.counters)
