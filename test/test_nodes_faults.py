@@ -165,6 +165,22 @@ def test_core_bad_sample_is_a_fault_with_its_reason(model, case, kind, joint, wo
     assert ticks_of(ev)[-1][1] == ts[79]
 
 
+def test_core_after_a_clock_jump_back_messages_of_checked_ticks_are_stale(model):
+    """The source's clock jumps back: one stamp_backwards fault; the following messages
+    (on the new clock, older than the last checked tick) are skipped and counted."""
+    core = MonitorCore(mdl.load(model))
+    Y, U = stream(60, seed=14)
+    ts = stamps(60)
+    ev = feed(core, ts[:50], Y, U)
+    ev = feed(core, ts[10:20], Y[10:], U[10:])
+    f = faults_of(ev)
+    assert [e[2] for e in f] == ["stamp_backwards", "stamp_backwards"]   # one per topic
+    assert not ticks_of(ev)
+    assert (core.counters["stale_y"], core.counters["stale_u"]) == (9, 9)
+    ev = feed(core, ts[50:], Y[50:], U[50:])          # back on the old clock, after the last tick
+    assert not faults_of(ev) and len(ticks_of(ev)) == 10
+
+
 def test_core_extra_names_are_ignored_and_counted(model):
     core = MonitorCore(mdl.load(model))
     Y, U = stream(50, seed=2)
@@ -813,6 +829,39 @@ class TestControllerNode:
         assert c["bad_reference"] - before["bad_reference"] == 3, c
         assert c["callback_errors"] == 0 and proc.alive()
         assert_law(bus, tracking_law(10.0, 1.0))
+
+
+class TestObserverNode:
+    def test_non_finite_input_or_sample_does_not_poison_the_estimate(self, bus, tmp_path):
+        """A NaN /plant_input or /joint_states is skipped (before: a NaN input made every later
+        estimate NaN); the estimates stay finite and follow the measurement."""
+        est = []
+        sub = bus.listener.create_subscription(JointEstimate, "observer/estimate", est.append,
+                                               QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        obs = launch.start("observer_node", {"joints": JOINTS}, tmp_path)
+        try:
+            # /plant_input: the observer and this test's own listener
+            assert bus.wait(lambda: bus.js.get_subscription_count() == 1 and bus.pi.get_subscription_count() == 2,
+                            30), obs.log.read_text()
+            time.sleep(0.5)
+            ts = stamps(60)
+            for k, t in enumerate(ts):
+                y = [0.1 + 1e-4 * k, -0.2]
+                if k == 30:
+                    y = [math.nan, -0.2]
+                bus.send_y(t, JOINTS, y)
+                time.sleep(0.005)
+                bus.send_u(t, JOINTS, [math.nan, 0.0] if k in (20, 21) else [0.0, 0.0])
+                time.sleep(0.005)
+            assert bus.wait(lambda: any(stamp_ns(m.header.stamp) == ts[-1] for m in list(est)))
+            mine = [m for m in list(est) if ts[0] <= stamp_ns(m.header.stamp) <= ts[-1]]
+            assert len(mine) >= 50 and ts[30] not in [stamp_ns(m.header.stamp) for m in mine]
+            assert all(np.all(np.isfinite(m.position)) and np.all(np.isfinite(m.velocity)) for m in mine)
+            assert abs(mine[-1].position[0] - (0.1 + 1e-4 * 59)) < 5e-3 and abs(mine[-1].position[1] + 0.2) < 5e-3
+            assert obs.alive()
+        finally:
+            launch.stop([obs])
+            bus.listener.destroy_subscription(sub)
 
 
 class TestSafeStopLatch:
