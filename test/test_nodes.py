@@ -112,6 +112,50 @@ def test_controller_gains_through_parameter_service(ros, tmp_path):
         launch.stop([ctl])
 
 
+def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
+    """The reference may arrive after the estimate of the same stamp (two nodes, two paths):
+    the controller waits for it; without one it uses the newest earlier reference."""
+    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0],
+                                           "reference_timeout": 0.2}, tmp_path)
+    got = {}
+    ros.create_subscription(PlantInput, "plant_input", lambda m: got.setdefault(
+        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, list(m.acceleration)), TICK_QOS)
+    est_pub = ros.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)
+    ref_pub = ros.create_publisher(JointReference, "reference", TICK_QOS)
+
+    def law(q_d, qd_d, qdd_d, q=(0.1, -0.2)):
+        return [qdd_d[i] + 100.0 * (q_d[i] - q[i]) + 20.0 * (qd_d[i] - 0.0) for i in range(2)]
+
+    try:
+        k, stamp = 0, None
+        ref = ([0.3, 0.1], [0.2, -0.1], [1.0, -0.5])
+        end = time.monotonic() + 30
+        while time.monotonic() < end:
+            k += 1
+            stamp = 10**18 + k * 4_000_000
+            e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            r = JointReference(name=JOINTS, position=ref[0], velocity=ref[1], acceleration=ref[2])
+            to_stamp(e.header.stamp, stamp)
+            to_stamp(r.header.stamp, stamp)
+            est_pub.publish(e)              # the estimate first ...
+            spin_until(ros, lambda: False, 0.03)
+            ref_pub.publish(r)              # ... its reference 30 ms later
+            if spin_until(ros, lambda: stamp in got, 0.3):
+                break
+        assert stamp in got
+        assert got[stamp] == pytest.approx(law(*ref), abs=1e-12)
+        # no reference for this stamp: after the timeout the newest earlier one is used
+        k += 1
+        stamp2 = 10**18 + k * 4_000_000
+        e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+        to_stamp(e.header.stamp, stamp2)
+        est_pub.publish(e)
+        assert spin_until(ros, lambda: stamp2 in got, 5.0)
+        assert got[stamp2] == pytest.approx(law(*ref), abs=1e-12)
+    finally:
+        launch.stop([ctl])
+
+
 def plant_stream(n, seed=0, fault_from=None):
     """Data that follow the per-joint plant (small bounded disturbances), two joints."""
     p = lwa4p_joint_plant()

@@ -11,6 +11,8 @@ holds them; only a cleared stop gives control back. An estimate it cannot use (a
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
 treated as none (hold the measured position); both are counted on ``/diagnostics``.
 """
+import time
+
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
@@ -66,6 +68,10 @@ class ControllerNode(Node):
         self.declare_parameter("u_max", [26.0, 26.0, 26.0, 26.0, 100.0, 100.0],
                                desc("U_p half-width per joint, rad/s^2"))
         self.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2", 0.0, 1000.0))
+        self.declare_parameter("reference_timeout", 0.02,
+                               desc("wait up to this long (s, wall) for the reference of an estimate's stamp; "
+                                    "then the newest earlier reference is used (counted late_reference)",
+                                    0.0, 1.0))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         params = self.get_parameter("robot_params").value or None
@@ -82,7 +88,10 @@ class ControllerNode(Node):
         self.refs = {}
         self.stop_active = False
         self.q_hold = None
-        self.counters = {"no_reference": 0, "bad_reference": 0, "bad_estimate": 0, "braking_ticks": 0}
+        self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
+                         "braking_ticks": 0}
+        self.waiting = None          # (stamp, msg, wall time) of an estimate whose reference is not here yet
+        self.last_ref = None         # the newest usable reference (stamp, (q_d, qd_d, qdd_d))
         self.effort_pub = self.create_publisher(Float64MultiArray, "effort_commands", TICK_QOS)
         self.input_pub = self.create_publisher(PlantInput, "plant_input", TICK_QOS)
         self.create_subscription(JointEstimate, "observer/estimate", self.on_estimate, TICK_QOS)
@@ -90,6 +99,7 @@ class ControllerNode(Node):
         self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
+        self.create_timer(0.002, self.on_wait_timer)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     def publish_diagnostics(self):
@@ -152,20 +162,39 @@ class ControllerNode(Node):
 
     # -- data ----------------------------------------------------------------------------
     def on_reference(self, msg):
-        self.refs[stamp_ns(msg.header.stamp)] = msg
+        stamp = stamp_ns(msg.header.stamp)
+        self.refs[stamp] = msg
         while len(self.refs) > 50:
             self.refs.pop(next(iter(self.refs)))
+        if self.waiting is not None and self.waiting[0] == stamp:
+            _, est, _ = self.waiting
+            self.waiting = None
+            self.on_estimate(est)
+
+    def on_wait_timer(self):
+        """An estimate waited ``reference_timeout`` for its reference: control with the newest earlier one."""
+        if self.waiting is None:
+            return
+        if time.monotonic() - self.waiting[2] >= float(self.get_parameter("reference_timeout").value):
+            _, est, _ = self.waiting
+            self.waiting = None
+            self.on_estimate(est, late=True)
 
     def on_safe_stop(self, msg):
         self.stop_active = bool(msg.active)
         if not self.stop_active:
             self.q_hold = None
 
-    def reference_at(self, stamp):
-        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``, or None when there is none or
-        it lacks a joint, has short arrays or non-finite values (counted: ``bad_reference``)."""
+    def reference_at(self, stamp, late=False):
+        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; when it has not arrived and
+        ``late``, the newest earlier usable reference (counted ``late_reference``); None when
+        there is none (``no_reference``) or it lacks a joint, has short arrays or non-finite
+        values (``bad_reference``)."""
         ref = self.refs.pop(stamp, None)
         if ref is None:
+            if late and self.last_ref is not None and self.last_ref[0] < stamp:
+                self.counters["late_reference"] += 1
+                return self.last_ref[1]
             self.counters["no_reference"] += 1
             return None
         ridx = {n: i for i, n in enumerate(ref.name)}
@@ -180,10 +209,23 @@ class ControllerNode(Node):
         if not all(np.all(np.isfinite(a)) for a in out):
             self.counters["bad_reference"] += 1
             return None
+        self.last_ref = (stamp, out)
         return out
 
-    def on_estimate(self, msg):
+    def on_estimate(self, msg, late=False):
+        """Control from the estimate and the reference of the same stamp (paired by stamp: the
+        two come from different nodes, in either order). An estimate whose reference has not
+        arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
+        if not late and not self.stop_active and stamp not in self.refs:
+            if self.waiting is not None and self.waiting[0] < stamp:
+                _, old, _ = self.waiting
+                self.waiting = None
+                self.on_estimate(old, late=True)
+            if float(self.get_parameter("reference_timeout").value) > 0:
+                self.waiting = (stamp, msg, time.monotonic())
+                return
+            late = True
         idx = {n: i for i, n in enumerate(msg.name)}
         n = len(msg.name)
         if any(j not in idx for j in self.joints) or len(msg.position) < n or len(msg.velocity) < n:
@@ -203,7 +245,7 @@ class ControllerNode(Node):
                 self.q_hold = hold_position(q, qd, u_max)
             u = braking_input(q, qd, self.q_hold, u_max)
         else:
-            ref = self.reference_at(stamp)
+            ref = self.reference_at(stamp, late)
             if ref is None:
                 qd_ref, qdot_ref, qdd_ref = q.copy(), np.zeros_like(q), np.zeros_like(q)
             else:
