@@ -831,6 +831,10 @@ def _storage_files(path):
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: Beginnings of rosbags' errors about the contents of metadata.yaml (raised when a bag is opened).
+_METADATA_ERRORS = ("A metadata key is missing", "Invalid bag metadata", "Could not load YAML",
+                    "Could not read metadata", "Rosbag2 version", "Storage plugin", "Compression format",
+                    "Serialization format")
 
 
 def _preflight(path):
@@ -884,6 +888,8 @@ def _read_rosbags(reader, src, wanted, sinks, batch=8192):
     for seq, (conn, _t, raw) in enumerate(reader.messages(connections=conns)):
         topic = conn.topic
         msgtype, fld = wanted[topic]
+        if not isinstance(raw, (bytes, bytearray, memoryview)):   # e.g. NULL in a damaged sqlite3 row
+            raise ReachsetError(f"unreadable message on {topic} (message {seq} of the bag): no data")
         if conn.msgtype == msgtype and msgtype in FAST_TYPES:
             p = pend.get(topic)
             if p is None:
@@ -919,9 +925,8 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
         where = "metadata.yaml"
         try:
             files = _preflight(path)
-            reader = Reader(path)               # reads metadata.yaml
             where = ", ".join(f.name for f in files)
-            with reader:                        # opens the storage files
+            with Reader(path) as reader:
                 types = {}
                 for c in reader.connections:
                     if not (isinstance(c.topic, str) and isinstance(c.msgtype, str)):
@@ -957,6 +962,8 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
             first = str(e).splitlines()[0] if str(e) else ""
             if isinstance(e, MemoryError):
                 first = "a record larger than the memory (damaged length field?)"
+            if first.startswith(_METADATA_ERRORS):
+                where = "metadata.yaml"
             raise ReachsetError(f"{path}: unreadable bag ({where}: {type(e).__name__}"
                                 + (f": {first})" if first else ")")) from e
     out = {}

@@ -181,6 +181,8 @@ def from_dict(d, source="model") -> ConformanceModel:
 
 def load(path) -> ConformanceModel:
     p = Path(path)
+    if p.is_dir():
+        raise ReachsetError(f"{p}: is a directory, not a model file")
     if not p.is_file():
         raise ReachsetError(f"{p}: model file not found")
     try:

@@ -158,6 +158,54 @@ def make_bad_bag(case, tmp_path, data):
     if case == "too_few_samples":
         _small(path, data, n=HORIZON)            # fewer ticks than history + horizon + 1
         return path, ["arm_1_joint", "too few samples", f"horizon {HORIZON}"]
+    if case == "mcap_bad_payload":             # an intact file holding one damaged message
+        ts = bags.typestore()
+        with bags.BagWriter(path) as w:
+            for i in range(100):
+                t = int(stamps[i])
+                js = bytearray(ts.serialize_cdr(bags.joint_state(t, JOINTS, y[i]), bags.JOINT_STATE_TYPE))
+                if i == 60:
+                    js[16:20] = (1000).to_bytes(4, "little")      # frame_id length beyond the message
+                w.write_raw(bags.JOINT_STATES, bytes(js), t, bags.JOINT_STATE_TYPE)
+                w.write(bags.PLANT_INPUT, bags.plant_input(t, JOINTS, u[i]), t)
+        return path, [str(path), "unreadable bag", "bag.mcap", f"message on /joint_states at log time {stamps[60]} ns"]
+    if case == "zstd_chunk_damaged":           # the zstd frame of a compressed chunk overwritten
+        from mcap.reader import make_reader
+        from rosbags.rosbag2 import Writer
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+        ts = bags.typestore()
+        w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with w:
+            cj = w.add_connection(bags.JOINT_STATES, bags.JOINT_STATE_TYPE, typestore=ts)
+            cp = w.add_connection(bags.PLANT_INPUT, bags.PLANT_INPUT_TYPE, typestore=ts)
+            for i in range(200):
+                t = int(stamps[i])
+                w.write(cj, t, ts.serialize_cdr(bags.joint_state(t, JOINTS, y[i]), bags.JOINT_STATE_TYPE))
+                w.write(cp, t, ts.serialize_cdr(bags.plant_input(t, JOINTS, u[i]), bags.PLANT_INPUT_TYPE))
+        mcap = path / "bag.mcap"
+        with open(mcap, "rb") as f:
+            ci = make_reader(f).get_summary().chunk_indexes[0]
+        assert ci.compression == "zstd"
+        b = bytearray(mcap.read_bytes())
+        at = ci.chunk_start_offset + 9 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8   # start of the compressed data
+        b[at:at + 4] = bytes(4)                                                 # the zstd frame magic
+        mcap.write_bytes(bytes(b))
+        return path, [str(path), f"unreadable bag (bag.mcap: chunk at offset {ci.chunk_start_offset}: ZstdError"]
+    if case == "sqlite3_null_message":         # found by benchmarks/fuzz_inputs.py (traceback before)
+        import sqlite3
+        with bags.BagWriter(path, storage="sqlite3") as w:
+            for i in range(100):
+                w.write(bags.JOINT_STATES, bags.joint_state(int(stamps[i]), JOINTS, y[i]), int(stamps[i]))
+                w.write(bags.PLANT_INPUT, bags.plant_input(int(stamps[i]), JOINTS, u[i]), int(stamps[i]))
+        con = sqlite3.connect(path / "bag.db3")
+        (sql,) = con.execute("SELECT sql FROM sqlite_master WHERE name = 'messages'").fetchone()
+        con.executescript("ALTER TABLE messages RENAME TO old; "
+                          + sql.replace("data BLOB NOT NULL", "data BLOB") + "; "
+                          "INSERT INTO messages SELECT * FROM old; DROP TABLE old; "
+                          "UPDATE messages SET data = NULL WHERE id = 41;")
+        con.close()
+        return path, [str(path), "unreadable message on /", "(message 40 of the bag): no data"]
     _small(path, data)
     mcap = path / "bag.mcap"
     raw = mcap.read_bytes()
@@ -197,6 +245,11 @@ def make_bad_bag(case, tmp_path, data):
     if case == "metadata_not_a_mapping":
         meta.write_text("- 1\n- 2\n")
         return path, [str(path), "metadata"]
+    if case == "metadata_key_missing":
+        d = yaml.safe_load(meta.read_text())
+        del d["rosbag2_bagfile_information"]["topics_with_message_count"][0]["topic_metadata"]["type"]
+        meta.write_text(yaml.safe_dump(d))
+        return path, [str(path), "unreadable bag (metadata.yaml: ReaderError: A metadata key is missing"]
     if case == "metadata_topic_not_a_string":          # found by benchmarks/fuzz_inputs.py
         d = yaml.safe_load(meta.read_text())
         d["rosbag2_bagfile_information"]["topics_with_message_count"][0]["topic_metadata"]["name"] = ["x"]
@@ -207,9 +260,10 @@ def make_bad_bag(case, tmp_path, data):
 
 BAD_BAGS = ["missing_path", "regular_file", "empty_dir", "dir_with_random_file", "no_joint_states",
             "no_plant_input", "no_common_joints", "too_few_samples", "truncated_mcap", "mcap_not_mcap",
-            "mcap_corrupt_chunk", "mcap_huge_length", "mcap_missing_file", "metadata_garbage",
+            "mcap_corrupt_chunk", "mcap_huge_length", "mcap_bad_payload", "zstd_chunk_damaged",
+            "sqlite3_null_message", "mcap_missing_file", "metadata_garbage",
             "metadata_incomplete", "metadata_binary", "metadata_removed", "metadata_not_a_mapping",
-            "metadata_topic_not_a_string"]
+            "metadata_key_missing", "metadata_topic_not_a_string"]
 
 
 def assert_one_line_error(code, out, err, cmd, words):
@@ -365,7 +419,7 @@ def make_bad_model(case, tmp_path, model_file):
         return path, ["model file not found"]
     if case == "directory":
         path.mkdir()
-        return path, ["model file not found"]
+        return path, ["is a directory, not a model file"]
     if case == "not_yaml":
         path.write_text("format: reachset_ros/model/1\njoints: {{{ [\n")
         return path, ["does not parse"]
