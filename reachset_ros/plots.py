@@ -198,13 +198,41 @@ def _read_topics(bag, topics):
     return out
 
 
-def demo_tracking(data, syn, until):
+def run_tracking_set(model, joint, references, margin):
+    """The tracking-error box that the monitor's model guarantees for the references of a run.
+
+    Paper Appendix B (method 3) applied to the references actually run, not to the training
+    ones: ``R*_e = Y_e,ref (+) R_e``, where ``Y_e,ref`` is the nominal loop's reference error
+    for ``references`` (:func:`reachset_ros.synthesis.reference_error`, exact on every tick)
+    and ``R_e`` the disturbance part of the synthesis, scaled by ``1 + margin`` (with zero
+    centers R_e is linear in alpha, and the monitor accepts data conformant to the inflated
+    sets). Returns (center, radius) of the interval hull (position, velocity), or None when
+    the model has no gains for the joint.
+    """
+    from . import synthesis as syn_mod
+    js = model.joints.get(joint)
+    g = dict(js.gains) if js is not None else {}
+    if not g or "re_radius" not in g:
+        return None
+    ref_old = (js.extra or {}).get("reference_error", {}).get("y_e_ref")
+    r_total = np.asarray(g["re_radius"][:2], float)
+    half_old = (np.array([b - a for a, b in ref_old[:2]]) / 2.0) if ref_old else np.zeros(2)
+    r_dist = np.maximum(r_total - half_old, 0.0)
+    obs, ctrl = syn_mod.components_from_gains(g, model.plant.dt)
+    ref = syn_mod.reference_error(model.plant, obs, ctrl, references)
+    lo, hi = np.asarray(ref.e_lo[:2], float), np.asarray(ref.e_hi[:2], float)
+    return 0.5 * (lo + hi), (1.0 + margin) * r_dist + 0.5 * (hi - lo)
+
+
+def demo_tracking(data, syn, until, model=None, references=None, margin=0.0):
     """Measured tracking errors of the demo's monitored run (before ``until``) against R_e.
 
     The error is the observer's estimate minus the reference (position, velocity), as the
-    controller sees it; R_e is the synthesis' guaranteed set (interval hull radius). Returns
-    {joint: {"max_abs_error": [q, qdot], "re_radius": [q, qdot], "share_inside": float,
-    "ticks": int}} and the per-joint error arrays.
+    controller sees it. Two boxes: the synthesis' ``R*_e`` (training references, the sets as
+    identified; centered at zero as reported) and, when ``model`` and ``references`` are
+    given, :func:`run_tracking_set` (the references of this run, the monitor's margin).
+    Returns {joint: {"max_abs_error", "re_radius", "share_inside", "ticks", and with a model
+    "run_center", "run_radius", "share_inside_run"}} and the per-joint error arrays.
     """
     est, ref = data["/observer/estimate"], data["/reference"]
     stamps = sorted(s for s in est if s in ref and s < until)
@@ -218,8 +246,15 @@ def demo_tracking(data, syn, until):
                        est[s].velocity[idx(est[s])] - ref[s].velocity[idx(ref[s])]] for s in stamps])
         r = [float(x) for x in j["re_radius"][:2]]
         inside = (np.abs(e[:, 0]) <= r[0]) & (np.abs(e[:, 1]) <= r[1])
-        stats[name] = {"max_abs_error": np.abs(e).max(axis=0).tolist(), "re_radius": r,
-                       "share_inside": float(inside.mean()), "ticks": len(stamps)}
+        st = {"max_abs_error": np.abs(e).max(axis=0).tolist(), "re_radius": r,
+              "share_inside": float(inside.mean()), "ticks": len(stamps)}
+        if model is not None and references is not None and references.get(name):
+            box = run_tracking_set(model, name, references[name], margin)
+            if box is not None:
+                c, rr = box
+                st.update(run_center=c.tolist(), run_radius=rr.tolist(),
+                          share_inside_run=float(np.all(np.abs(e - c) <= rr, axis=1).mean()))
+        stats[name] = st
         errors[name] = e
     return stats, errors
 
@@ -238,20 +273,38 @@ def demo_plots(res, record, workdir):
     stop = res.get("safe_stop_ns")
     until = min(x for x in (fault, stop, float("inf")) if x is not None)
     syn = (res.get("reidentify") or res.get("synthesis") or {}).get("joints", {})
-    stats, errors = demo_tracking(data, syn, until)
+    model, refs = None, None
+    if res.get("monitor_model"):
+        from . import model as mdl
+        from .synthesis import read_references
+        model = mdl.load(res["monitor_model"])
+        refs = {n: [r.slice(0, int(np.searchsorted(r.stamps, until))) for r in rs
+                    if len(r) and r.stamps[0] < until]
+                for n, rs in read_references([record]).items()}
+    stats, errors = demo_tracking(data, syn, until, model, refs, float(res.get("margin") or 0.0))
     paths = []
     names = list(errors)
     if names:
         fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7))
         for ax, name in zip(np.ravel(axes), names):
             j, e, r = syn[name], errors[name], stats[name]["re_radius"]
-            _box(ax, [0.0, 0.0], r, edgecolor="tab:blue", linewidth=2, label="R_e (guaranteed)")
-            ax.plot(e[:, 0], e[:, 1], ".", ms=1, color="tab:red", label="measured")
-            ax.set_title(f"{name}: ||R_e|| = {j['re_norm']:.3g}, {stats[name]['share_inside']:.1%} inside", fontsize=9)
+            st = stats[name]
+            _box(ax, [0.0, 0.0], r, edgecolor="tab:blue", linewidth=1, linestyle="--",
+                 label="R*_e of the synthesis (training references)")
+            ext = np.array(r)
+            title = f"{name}: {st['share_inside']:.1%} in R*_e"
+            if "run_radius" in st:
+                _box(ax, st["run_center"], st["run_radius"], edgecolor="tab:green", linewidth=2,
+                     label="R*_e of this run (its references, monitor margin)")
+                ext = np.maximum(ext, np.abs(st["run_center"]) + np.array(st["run_radius"]))
+                title += f", {st['share_inside_run']:.1%} in this run's"
+            ax.plot(e[:, 0], e[:, 1], ".", ms=1, color="tab:red", label="measured (estimate - reference)")
+            ax.set_title(title, fontsize=8)
             ax.set_xlabel("q error [rad]")
             ax.set_ylabel("qdot error [rad/s]")
-            ax.set_xlim(-1.2 * r[0], 1.2 * r[0])
-            ax.set_ylim(-1.2 * r[1], 1.2 * r[1])
+            ext = np.maximum(ext, np.abs(e).max(axis=0))
+            ax.set_xlim(-1.2 * ext[0], 1.2 * ext[0])
+            ax.set_ylim(-1.2 * ext[1], 1.2 * ext[1])
         np.ravel(axes)[0].legend(fontsize=7, loc="upper right")
         p = outdir / "demo_tracking_error.png"
         _save(plt, fig, p)

@@ -146,9 +146,13 @@ def human_summary(s):
                      f"alpha_v = {np.round(j['alpha_v'], 7).tolist()}")
     lines.append(f"gains before: {s.get('gains_before')}")
     for name, t in (s.get("tracking") or {}).items():
-        lines.append(f"{name}: measured |e| max q {t['max_abs_error'][0]:.3g} rad, qdot {t['max_abs_error'][1]:.3g} "
-                     f"rad/s; R_e radius {t['re_radius'][0]:.3g}, {t['re_radius'][1]:.3g}; "
-                     f"{t['share_inside']:.1%} of {t['ticks']} ticks inside")
+        line = (f"{name}: measured |e| max q {t['max_abs_error'][0]:.3g} rad, qdot {t['max_abs_error'][1]:.3g} "
+                f"rad/s; synthesis R*_e radius {t['re_radius'][0]:.3g}, {t['re_radius'][1]:.3g} "
+                f"({t['share_inside']:.1%} of {t['ticks']} ticks inside)")
+        if "run_radius" in t:
+            line += (f"; this run's R*_e (its references, margin) radius {t['run_radius'][0]:.3g}, "
+                     f"{t['run_radius'][1]:.3g} ({t['share_inside_run']:.1%} inside)")
+        lines.append(line)
     lines.append(f"ticks monitored until the stop: {s['ticks_monitored']}; status messages: {s['status_messages']} "
                  f"at {s['status_rate_hz_until_stop']:.1f} Hz until the stop")
     lines.append(f"fault: {s['fault']} at stamp {s['fault_injected_ns']}")

@@ -84,9 +84,14 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
                                   workdir))
 
         def record_phase(name, seconds, topics, path):
-            rec = launch.start("recorder_node", {"output": str(path), "topics": topics}, workdir,
-                               node_name="recorder_node_" + name.replace(" ", "_"))
-            driver.spin_for(2.0)  # discovery
+            node = "recorder_node_" + name.replace(" ", "_")
+            rec = launch.start("recorder_node", {"output": str(path), "topics": topics}, workdir, node_name=node)
+            # recording starts when the recorder has subscribed to every topic (a loaded machine
+            # can take many seconds to start a process), not after a fixed pause
+            if not driver.spin_for(60.0, until=lambda: all(
+                    any(i.node_name == node for i in driver.get_subscriptions_info_by_topic(t)) for t in topics)):
+                raise RuntimeError(f"{node} did not subscribe to {topics} within 60 s")
+            driver.spin_for(0.5)  # matching with the publishers
             log(f"[demo] {name}: recording {seconds:.0f} s to {path}")
             t0 = time.monotonic()
             return rec, t0
