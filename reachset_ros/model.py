@@ -26,6 +26,10 @@ from .plant import LinearPlant, lwa4p_joint_plant
 FORMAT = "reachset_ros/model/1"
 
 
+# Largest horizon k* a model file may ask for: the monitor keeps k*+1 test cases per joint and
+# the Theorem-1 normals/offsets per k (the paper uses 125; 100,000 ticks = 400 s at 250 Hz).
+MAX_HORIZON = 100_000
+
 @dataclass(frozen=True)
 class JointSets:
     """Identified sets and bookkeeping of one joint."""
@@ -149,8 +153,8 @@ def from_dict(d, source="model") -> ConformanceModel:
     plant = plant_from_spec(d.get("plant"))
     est = Estimator.from_dict(d.get("estimator", {"name": "fd"}))
     horizon = _int(d.get("horizon", 125), "horizon")
-    if horizon < 0:
-        raise ReachsetError(f"{source}: horizon must be >= 0")
+    if not 0 <= horizon <= MAX_HORIZON:
+        raise ReachsetError(f"{source}: horizon must be in [0, {MAX_HORIZON}], got {horizon}")
     inflation = _floats(d.get("inflation", 0.0), "inflation", 1)[0]
     if inflation < 0:
         raise ReachsetError(f"{source}: inflation must be >= 0")

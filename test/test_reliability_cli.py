@@ -463,6 +463,9 @@ def make_bad_model(case, tmp_path, model_file):
     elif case == "horizon_nan":
         d["joints"]["arm_2_joint"]["horizon"] = float("nan")
         words = ["joint arm_2_joint horizon must be an integer"]
+    elif case == "horizon_huge":
+        d["horizon"] = 10**9
+        words = ["horizon must be in [0, 100000]"]
     elif case == "estimator_name_list":
         d["estimator"] = {"name": ["fd"]}
         words = ["unknown initial-state estimator"]
@@ -477,7 +480,7 @@ def make_bad_model(case, tmp_path, model_file):
 
 BAD_MODELS = ["missing", "directory", "not_yaml", "binary", "empty", "wrong_format", "negative_alpha",
               "nan_alpha", "alpha_not_numbers", "bad_plant", "bad_horizon", "test_cases_null", "horizon_nan",
-              "estimator_name_list", "plant_matrix_missing"]
+              "horizon_huge", "estimator_name_list", "plant_matrix_missing"]
 
 
 @pytest.mark.parametrize("cmd", ["check", "replay"])
