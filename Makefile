@@ -14,7 +14,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 MSG_SRCS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
 PYTEST_ARGS ?= -q
 
-.PHONY: all venv test demo benchmark clean distclean
+.PHONY: all venv test demo benchmark fuzz clean distclean
 
 all: test
 
@@ -49,6 +49,11 @@ demo: venv
 
 benchmark: venv
 	$(PY) benchmarks/run_all.py
+
+# fuzz the bag reader and the model-file loader (FUZZ_SECONDS, default 120; docs/reliability.md)
+FUZZ_SECONDS ?= 120
+fuzz: venv
+	$(PY) benchmarks/fuzz_inputs.py --seconds $(FUZZ_SECONDS)
 
 clean:
 	rm -rf build build-msgs.log .pytest_cache
