@@ -669,8 +669,9 @@ class TestMonitorNode:
 Q_TEST = np.array([0.1, -0.2])
 
 
-def start_controller(d, model=None, u_max=(26.0, 26.0)):
-    params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0]}
+def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False):
+    params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0],
+              "wait_for_monitor": wait_for_monitor}
     if model is not None:
         params["model_file"] = str(model)
     return launch.start("controller_node", params, d)
@@ -864,6 +865,34 @@ class TestObserverNode:
             bus.listener.destroy_subscription(sub)
 
 
+class TestWaitForMonitor:
+    def test_controller_holds_until_it_knows_the_stop_state(self, bus, tmp_path):
+        """With ``wait_for_monitor`` a (re)started controller brakes and holds until the first
+        /safe_stop message tells it whether a stop is latched; an inactive one releases it."""
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+        bus.clear()
+        qd = np.array([0.5, -0.5])
+        ctl = start_controller(tmp_path, wait_for_monitor=True)
+        pub = None
+        try:
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+                            30), ctl.log.read_text()
+            time.sleep(1.0)
+            got = drive(bus, stamps(10), qd=qd)
+            assert got and all(np.allclose(u, braking_law(Q_TEST, qd, [26.0, 26.0]), rtol=0, atol=1e-9)
+                               for u in got.values()), got
+            # the monitor's initial state (what monitor_node publishes, latched, when it starts)
+            pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+            pub.publish(SafeStop(active=False, kind="reset", reason="monitor started: no safe stop active"))
+            track = tracking_law(10.0, 1.0, qd=qd)
+            assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15)
+            assert ctl.alive()
+        finally:
+            launch.stop([ctl])
+            if pub is not None:
+                bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
+
+
 class TestSafeStopLatch:
     def test_latched_stop_reaches_a_restarted_controller_and_only_reset_clears_it(self, bus, monitor, tmp_path):
         mproc, _, _ = monitor
@@ -891,7 +920,7 @@ class TestSafeStopLatch:
 
         # the controller of the previous class is gone from the graph
         assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
-        a = start_controller(tmp_path / "a")
+        a = start_controller(tmp_path / "a", wait_for_monitor=True)
         b = None
         try:
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
@@ -911,10 +940,11 @@ class TestSafeStopLatch:
                 rclpy.spin_once(bus.caller, timeout_sec=0.05)
             bus.caller.destroy_subscription(sub)
             assert late and late[-1].active and late[-1].kind == "name_mismatch"
-            # the controller restarts: the new one brakes from its first output on
+            # the controller restarts: the new one (waiting for the monitor's state, as it
+            # should on a robot) brakes from its first output on
             launch.stop([a])
             assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
-            b = start_controller(tmp_path / "b")
+            b = start_controller(tmp_path / "b", wait_for_monitor=True)
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
                             30), b.log.read_text()
             assert bus.wait(lambda: len(bus.caller.get_subscriptions_info_by_topic("/safe_stop")) >= 2, 15)
@@ -927,7 +957,7 @@ class TestSafeStopLatch:
             Y, U = stream(30, seed=12)
             bus.send_ticks(stamps(30), Y, U)
             time.sleep(0.5)
-            assert len(bus.active_stops()) == 1 and all(s.active for s in bus.stops)
+            assert len(bus.active_stops()) == 1 and bus.stops[-1].active
             settle(brake)
             # only the reset service clears it: the controller tracks again
             assert bus.call_trigger("/monitor_node/reset").success

@@ -7,7 +7,9 @@ stamp. Gains change only through the parameter services, atomically between tick
 change is refused with its reason when the closed loop would be unstable or its reachable
 input would leave U_p under the current model (``model_file``). On an active
 ``/safe_stop`` it switches to a braking law that brings the joints to rest within U_p and
-holds them; only a cleared stop gives control back. An estimate it cannot use (a joint
+holds them; only a cleared stop gives control back. With ``wait_for_monitor`` it also
+holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
+the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
 treated as none (hold the measured position); both are counted on ``/diagnostics``.
 """
@@ -72,6 +74,10 @@ class ControllerNode(Node):
                                desc("wait up to this long (s, wall) for the reference of an estimate's stamp; "
                                     "then the newest earlier reference is used (counted late_reference)",
                                     0.0, 1.0))
+        self.declare_parameter("wait_for_monitor", False,
+                               desc("hold the joints (braking law) until the first /safe_stop message; the monitor "
+                                    "publishes its state, latched, when it starts, so a (re)started controller "
+                                    "never moves the arm before it knows whether a safe stop is latched"))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         params = self.get_parameter("robot_params").value or None
@@ -87,6 +93,7 @@ class ControllerNode(Node):
         self.u_max = u_max_array(self.get_parameter("u_max").value, len(self.joints))
         self.refs = {}
         self.stop_active = False
+        self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.q_hold = None
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
                          "braking_ticks": 0}
@@ -109,6 +116,8 @@ class ControllerNode(Node):
         st = DiagnosticStatus(name="reachset_ros: controller", hardware_id="")
         if self.stop_active:
             st.level, st.message = DiagnosticStatus.ERROR, "safe stop: braking and holding"
+        elif not self.stop_known:
+            st.level, st.message = DiagnosticStatus.WARN, "holding: no /safe_stop state from the monitor yet"
         else:
             st.level, st.message = DiagnosticStatus.OK, "tracking"
         counts = dict(self.counters, callback_errors=getattr(self, "callback_errors", 0))
@@ -151,7 +160,7 @@ class ControllerNode(Node):
                     model = mdl.load(p.value) if p.value else None
                 except ReachsetError as e:
                     return SetParametersResult(successful=False, reason=str(e))
-            if p.name in ("joints", "robot_params"):
+            if p.name in ("joints", "robot_params", "wait_for_monitor"):
                 return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
         try:
             gains, u_max = self.validate(values, model)
@@ -181,6 +190,7 @@ class ControllerNode(Node):
             self.on_estimate(est, late=True)
 
     def on_safe_stop(self, msg):
+        self.stop_known = True
         self.stop_active = bool(msg.active)
         if not self.stop_active:
             self.q_hold = None
@@ -217,7 +227,8 @@ class ControllerNode(Node):
         two come from different nodes, in either order). An estimate whose reference has not
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
-        if not late and not self.stop_active and stamp not in self.refs:
+        braking = self.stop_active or not self.stop_known
+        if not late and not braking and stamp not in self.refs:
             if self.waiting is not None and self.waiting[0] < stamp:
                 _, old, _ = self.waiting
                 self.waiting = None
@@ -239,7 +250,7 @@ class ControllerNode(Node):
             self.counters["bad_estimate"] += 1
             return
         u_max = self.u_max
-        if self.stop_active:
+        if braking:
             self.counters["braking_ticks"] += 1
             if self.q_hold is None:
                 self.q_hold = hold_position(q, qd, u_max)

@@ -204,6 +204,12 @@ class MonitorNode(Node):
             ok, why = self.load(path)
             if not ok:
                 self.get_logger().error(why)
+        # the initial state, latched: a controller waiting for the monitor may start
+        m = SafeStop()
+        m.header.stamp = self.get_clock().now().to_msg()
+        m.active, m.kind, m.reason = False, "reset", "monitor started: no safe stop active"
+        self.stop_msg = m
+        self.stop_pub.publish(m)
 
     # -- configuration ------------------------------------------------------------------
     def build(self, path, joints=None):
