@@ -190,7 +190,8 @@ def run_phase(name, seconds, burners, workdir, listener, seed):
         "late_ticks": int(np.sum(lat > 4.0)),
         "latency_ms": {"p50": pct(lat, 50), "p99": pct(lat, 99), "max": float(lat.max()) if len(lat) else None},
         "publisher_lag_ms": {"p50": pct(lag, 50), "p99": pct(lag, 99), "max": float(lag.max())},
-        "monitor_path_ms": {"p50": pct(path, 50), "p99": pct(path, 99), "max": float(path.max()) if len(path) else None},
+        "monitor_path_ms": {"p50": pct(path, 50), "p99": pct(path, 99),
+                            "max": float(path.max()) if len(path) else None},
         "check_us": {"p50": pct(dur * 1e6, 50), "p99": pct(dur * 1e6, 99), "max": float(dur.max() * 1e6)},
     }
 
@@ -254,7 +255,8 @@ def main():
         print(f"{r['phase']:5s} ({r['burners']} burners, {r['seconds']:.0f} s, load average before "
               f"{r['loadavg_1min_before']:.2f}): {r['statuses']}/{r['ticks']} ticks "
               f"with a status ({r['missing']} missing), {100 * r['late_share']:.2f} % late (> 4 ms, "
-              f"{r['late_ticks']} ticks); latency p50 {lat['p50']:.2f} / p99 {lat['p99']:.2f} / max {lat['max']:.1f} ms; "
+              f"{r['late_ticks']} ticks); latency p50 {lat['p50']:.2f} / p99 {lat['p99']:.2f} / "
+              f"max {lat['max']:.1f} ms; "
               f"publisher lag p99 {lag['p99']:.2f} / max {lag['max']:.1f} ms; monitor+DDS p99 {path['p99']:.2f} / "
               f"max {path['max']:.1f} ms; check p50 {chk['p50']:.0f} / p99 {chk['p99']:.0f} / max {chk['max']:.0f} us; "
               f"non-conformant {r['non_conformant']}; safe stops {r['safe_stops'] or 'none'}")
