@@ -73,7 +73,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         procs.append(launch.start("sim_node", {"seed": seed, "realistic": True}, workdir))
         procs.append(launch.start("reference_node", {"seed": seed}, workdir))
         procs.append(launch.start("observer_node", {**common, **initial}, workdir))
-        procs.append(launch.start("controller_node", {**common, **initial}, workdir))
+        procs.append(launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir))
         procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
                                   workdir))
         from ..synthesis import config_path
