@@ -27,25 +27,66 @@ class Estimator:
     name : str
         ``"fd"``: causal finite differences of positions, corrected with the model's input
         response (LWA-4P plant of Appendix A; exact on noise-free model data);
-        ``"output"``: generic plant, x0 = pinv(C) y[m] (states not seen by C set to 0).
-    history : int
-        Number of past ticks (before m) the estimator reads, all in the same segment.
+        ``"output"``: generic plant, x0 = pinv(C) y[m] (states not seen by C set to 0);
+        ``"observer"``: a Kalman predictor (gains ``gain``) run over the last ``window``
+        ticks, started from pinv(C) y[m - window] (:func:`observer_gains`, :func:`_observer`).
+    window : int
+        Ticks the ``observer`` runs over (0 for the others).
+    gain : tuple
+        The ``observer``'s gains L_0..L_{window-1}, each (n, ny) (:func:`observer_gains`;
+        empty for the others).
+
+    The estimator is part of the model file; the monitor uses exactly this one.
     """
 
     name: str = "fd"
+    window: int = 0
+    gain: tuple = ()
 
     @property
     def history(self) -> int:
-        return {"fd": 3, "output": 0}[self.name]
+        """Number of past ticks (before m) the estimator reads, all in the same segment."""
+        return {"fd": 3, "output": 0, "observer": self.window}[self.name]
+
+    @classmethod
+    def observer(cls, plant, window=20, noise_ratio=1e-4):
+        """The ``observer`` estimator for ``plant`` (:func:`observer_gains`)."""
+        if not (isinstance(window, (int, np.integer)) and 1 <= window <= 10_000):
+            raise ReachsetError(f"observer window must be an integer in [1, 10000], got {window!r}")
+        G = observer_gains(plant, window, noise_ratio)
+        return cls("observer", int(window), _tuple3(G))
+
+    @classmethod
+    def named(cls, name, plant):
+        """The estimator ``name`` with its defaults for ``plant`` (the command line's choice)."""
+        if name == "observer":
+            return cls.observer(plant)
+        if name not in ESTIMATORS:
+            raise ReachsetError(f"unknown initial-state estimator {name!r}; known: {sorted(ESTIMATORS)}")
+        return cls(name)
 
     def as_dict(self):
+        if self.name == "observer":
+            return {"name": self.name, "window": int(self.window),
+                    "gains": [[list(r) for r in L] for L in self.gain]}
         return {"name": self.name}
 
     @classmethod
     def from_dict(cls, d):
         if not isinstance(d, dict) or not isinstance(d.get("name"), str) or d["name"] not in ESTIMATORS:
             raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
-        return cls(d["name"])
+        if d["name"] != "observer":
+            return cls(d["name"])
+        w, g = d.get("window"), d.get("gains")
+        if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 10_000:
+            raise ReachsetError(f"observer estimator: window must be an integer in [1, 10000], got {w!r}")
+        try:
+            G = np.array(g, dtype=np.float64)
+        except (TypeError, ValueError):
+            G = np.zeros((0,))
+        if G.ndim != 3 or G.shape[0] != w or G.size == 0 or not np.all(np.isfinite(G)):
+            raise ReachsetError("observer estimator: gains must be `window` matrices of finite numbers")
+        return cls("observer", w, _tuple3(G))
 
     def estimate_latest(self, plant, y_hist, u_hist):
         """Initial states of test cases starting at the newest sample of each row.
@@ -77,7 +118,14 @@ class Estimator:
         -------
         X0 : ndarray, shape (n, M)
         """
+        if self.name == "observer":
+            return _observer(plant, y, u, m, self.window, self.gain)
         return ESTIMATORS[self.name](plant, y, u, m)
+
+
+
+def _tuple3(G):
+    return tuple(tuple(tuple(float(x) for x in row) for row in L) for L in np.asarray(G, dtype=np.float64))
 
 
 def _fd(plant, y, u, m):
@@ -125,4 +173,67 @@ def _output(plant, y, u, m):
     return X0
 
 
-ESTIMATORS = {"fd": _fd, "output": _output}
+def observer_gains(plant, window, noise_ratio=1e-4, p0=1e4):
+    """Gains L_0..L_{window-1} of a Kalman predictor started with covariance ``p0`` I.
+
+    The time-varying Kalman filter over a finite window from an uninformative start: with
+    P_0 = p0 I, for i = 0..window-1
+
+        S_i = C P_i C^T + R,   L_i = A P_i C^T S_i^-1,   P_{i+1} = A P_i A^T + Q - L_i S_i L_i^T,
+
+    Q = G'_W G'_W^T + 1e-12 I, R = noise_ratio^2 G'_V G'_V^T (the unscaled generators: the
+    ratio says how much larger the process disturbances are than the measurement noise;
+    1e-4 fits the LWA-4P, alpha_V about 1e-4 rad against alpha_W about 1). On noise-free
+    model data the error decays with the window (test/test_estimators.py); the disturbance
+    state is not driven in Q and learns slowest. A design choice of the estimator, not
+    of the guarantees: any causal estimator used identically offline and online keeps
+    Theorem 1 sound. Returns an array of shape (window, n, ny).
+    """
+    A, C = plant.A, plant.C
+    n = A.shape[0]
+    Q = plant.Gw @ plant.Gw.T + 1e-12 * np.eye(n)
+    R = noise_ratio ** 2 * (plant.Gv @ plant.Gv.T)
+    P = p0 * np.eye(n)
+    out = []
+    for _ in range(int(window)):
+        S = C @ P @ C.T + R
+        L = A @ P @ C.T @ np.linalg.inv(S)
+        P = A @ P @ A.T + Q - L @ S @ L.T
+        P = 0.5 * (P + P.T)
+        out.append(L)
+    G = np.array(out)
+    if not np.all(np.isfinite(G)):
+        raise ReachsetError("observer estimator: the Kalman gains are not finite")
+    return G
+
+
+def _observer(plant, y, u, m, window, gains):
+    """Kalman predictor over y[m-window .. m-1], u[m-window .. m-1]; returns x_hat[m | m-1].
+
+        x_hat[m-window]   = pinv(C) y[m-window]        (then corrected by L_0 with the same y)
+        x_hat[t+1]        = A x_hat[t] + B u[t] + L_i (y[t] - C x_hat[t] - D u[t]),  t = m-window+i
+
+    Every product is the element-wise :func:`reachset_ros.conformance.matvec`, so the
+    result for one test case does not depend on how many are computed together (batch
+    check and monitor agree to the bit). Causal: it reads only samples before m.
+    """
+    from .conformance import matvec
+    G = np.array(gains, dtype=np.float64)
+    n, ny = plant.A.shape[0], plant.C.shape[0]
+    if G.shape != (window, n, ny):
+        raise ReachsetError(f"observer estimator: gains have shape {G.shape}, the plant and window need "
+                            f"({window}, {n}, {ny})")
+    m = np.asarray(m)
+    hasD = bool(np.any(plant.D))
+    X = matvec(np.linalg.pinv(plant.C), y[m - window].T)
+    for i in range(window):
+        t = m - window + i
+        Yt, Ut = y[t].T, u[t].T
+        innov = Yt - matvec(plant.C, X)
+        if hasD:
+            innov = innov - matvec(plant.D, Ut)
+        X = matvec(plant.A, X) + matvec(plant.B, Ut) + matvec(G[i], innov)
+    return X
+
+
+ESTIMATORS = {"fd": _fd, "output": _output, "observer": _observer}

@@ -1922,7 +1922,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         base = mdl.load(model)
         plant, plant_spec = base.plant, base.plant_spec
         horizon = base.horizon if horizon is None else int(horizon)
-        est = base.estimator if estimator is None else Estimator(estimator)
+        est = base.estimator if estimator is None else Estimator.named(estimator, base.plant)
         gains = {n: j.gains for n, j in base.joints.items()}
         names = list(base.joints) if not joints else list(joints)
         for n in names:
@@ -1934,7 +1934,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
             raise ReachsetError("a model file is only used with mode reidentify")
         plant, plant_spec = lwa4p_joint_plant(dt=dt), {"kind": "lwa4p_joint", "dt": dt}
         horizon = 125 if horizon is None else int(horizon)
-        est = Estimator(estimator or "fd")
+        est = Estimator.named(estimator or "fd", lwa4p_joint_plant(dt=dt))
         gains, names = None, (list(joints) if joints else None)
         space = SearchSpace.from_config(cfg, observer, controller, free, fix, bounds, eso_input, dt)
     if horizon < 0:

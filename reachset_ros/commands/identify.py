@@ -147,7 +147,7 @@ def run(args):
     grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
     plant = lwa4p_joint_plant(dt=args.dt)
-    est = Estimator(args.estimator)
+    est = Estimator.named(args.estimator, lwa4p_joint_plant(dt=args.dt))
     series, report = load_series(args.bags, args.joints, args.dt)
     require_horizon(series, est.history, args.horizon, args.bags)
     vseries = vreport = None

@@ -1,0 +1,86 @@
+"""Initial-state estimators: fd, output, observer (stored in the model, used identically online)."""
+import json
+
+import numpy as np
+import pytest
+
+from reachset_ros import model as mdl
+from reachset_ros.errors import ReachsetError
+from reachset_ros.estimators import Estimator
+from reachset_ros.monitor import Monitor, MonitorModel
+from reachset_ros.plant import lwa4p_joint_plant
+from test_conformance import DT_NS, T0, run_cli, simulate, write_bag
+
+
+def noise_free(p, T, v0=0.3, d0=0.5):
+    x = np.zeros(5)
+    x[2], x[3] = v0, d0
+    X, y, u = [], np.zeros((T, 1)), np.zeros((T, 1))
+    for k in range(T):
+        X.append(x.copy())
+        y[k] = p.C @ x
+        u[k] = np.sin(0.05 * k)
+        x = p.A @ x + p.B[:, 0] * u[k, 0]
+    return np.array(X), y, u
+
+
+def test_observer_converges_on_noise_free_model_data():
+    p = lwa4p_joint_plant()
+    X, y, u = noise_free(p, 300)
+    m = np.arange(60, 300)
+    errs = [np.abs(Estimator.observer(p, w).estimate(p, y, u, m) - X[m].T).max(axis=1) for w in (5, 20, 50)]
+    # the error shrinks with the window in every state; at 50 ticks position and velocity are close
+    for a, b in zip(errs, errs[1:]):
+        assert np.all(b <= a + 1e-15)
+    assert errs[-1][0] < 2e-6 and errs[-1][1] < 2e-6 and errs[-1][2] < 5e-4
+    # fd sets the disturbance state to 0 and is exact only for d = 0: both are causal choices
+    X0, y0, u0 = noise_free(p, 300, d0=0.0)
+    assert np.abs(Estimator("fd").estimate(p, y0, u0, m) - X0[m].T).max() < 1e-12
+
+
+def test_observer_estimate_of_a_test_case_does_not_depend_on_the_batch():
+    p = lwa4p_joint_plant()
+    y, u = simulate(p, 500, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=1)
+    e = Estimator.observer(p, 15)
+    m = np.arange(15, 500)
+    all_at_once = e.estimate(p, y, u, m)
+    one_by_one = np.hstack([e.estimate(p, y, u, m[i:i + 1]) for i in range(0, len(m), 37)])
+    assert all_at_once[:, ::37].tobytes() == one_by_one.tobytes()
+
+
+def test_observer_estimator_file_round_trip_and_bad_files():
+    p = lwa4p_joint_plant()
+    e = Estimator.observer(p, 12)
+    assert Estimator.from_dict(e.as_dict()) == e and e.history == 12
+    d = e.as_dict()
+    for bad in ({**d, "window": 0}, {**d, "window": 13}, {**d, "gains": [[["x"]]]},
+                {**d, "gains": None}, {"name": "observer"}):
+        with pytest.raises(ReachsetError, match="observer estimator"):
+            Estimator.from_dict(bad)
+
+
+def test_cli_identify_with_the_observer_estimator_then_check_equals_replay(tmp_path):
+    p = lwa4p_joint_plant()
+    y, u = simulate(p, 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)
+    names = ["arm_1_joint"]
+    bag, model = tmp_path / "bag", tmp_path / "m.yaml"
+    write_bag(bag, y, u, names, T0 + DT_NS * np.arange(3000))
+    r = run_cli("identify", bag, "--horizon", "40", "--estimator", "observer", "--out", model, "--json")
+    assert r.returncode == 0, r.stderr
+    m = mdl.load(model)
+    assert m.estimator.name == "observer" and m.estimator.history == 20
+    assert json.loads(r.stdout)["joints"]["arm_1_joint"]["test_cases"] == 3000 - 20
+    assert not Monitor([MonitorModel.from_model(m, "arm_1_joint")]).kernel   # numpy tick for this estimator
+    chk = json.loads(run_cli("check", bag, "--model", model, "--json").stdout)
+    assert chk["conformant"]
+    # a fault: both code paths flag exactly the same ticks
+    yf = y.copy()
+    yf[2000:, 0] += 0.5 * 20.0 * (0.004 * np.arange(1000)) ** 2
+    faulty = tmp_path / "faulty"
+    write_bag(faulty, yf, u, names, T0 + DT_NS * np.arange(3000))
+    chk = json.loads(run_cli("check", faulty, "--model", model, "--json").stdout)
+    rep = json.loads(run_cli("replay", faulty, "--model", model, "--json").stdout)
+    assert not chk["conformant"]
+    for k in ("violations", "first_violation_ns", "test_cases", "checks"):
+        assert chk["joints"]["arm_1_joint"][k] == rep["joints"]["arm_1_joint"][k], k
+    assert chk["joints"]["arm_1_joint"]["violations"] > 0
