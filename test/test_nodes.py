@@ -253,10 +253,12 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
         assert spin_until(ros, lambda: not stops[-1].active, 5.0)
         # stale data trips the watchdog: a few good ticks, then silence
         stops.clear()
+        n_before = len(status)
         for k, y, u in plant_stream(50, seed=3):
             publish(2000 + k, y, u)
             time.sleep(0.004)
         assert spin_until(ros, lambda: any(s.active for s in stops), 5.0)
+        assert status[n_before].tick == 1          # the tick counter restarts at the reset
         assert [s for s in stops if s.active][0].kind == "missing_data"
     finally:
         launch.stop([mon])

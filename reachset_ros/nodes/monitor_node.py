@@ -85,12 +85,14 @@ class MonitorCore:
         self.last_stamp = None
         self.topic_last = {}
         self.counters = collections.Counter()
+        self.ticks_since_reset = 0
         keep = model.horizon + model.estimator.history + 2
         self.window = collections.deque(maxlen=keep)
 
     def reset(self):
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
         self.monitor.reset()
+        self.ticks_since_reset = 0
         self.pending.clear()
         self.last_stamp = None
         self.topic_last.clear()
@@ -163,6 +165,7 @@ class MonitorCore:
         res = self.monitor.tick(stamp, y, u)
         res["duration"] = time.perf_counter() - t0
         self.counters["ticks"] += 1
+        self.ticks_since_reset += 1
         bad = [j for j, s in enumerate(res["status"]) if s == "invalid"]
         if bad:
             self.counters["invalid_ticks"] += 1
@@ -293,7 +296,7 @@ class MonitorNode(Node):
         to_stamp(m.header.stamp, stamp)
         m.conformant = bool(all(s in ("ok", "gap_reset") for s in res["status"]))
         m.safe_stop_active = self.stop_active
-        m.tick = int(self.core.counters["ticks"])
+        m.tick = int(self.core.ticks_since_reset)      # ticks processed since the last reset
         m.horizon = int(self.core.model.horizon)
         m.active_test_cases = int(max(res["checked"])) if len(res["checked"]) else 0
         m.name = list(self.core.joints)
