@@ -109,6 +109,20 @@ def test_case_starts(segments, history):
     return np.concatenate(starts), np.concatenate(ends)
 
 
+def require_horizon(series, history, horizon, bags):
+    """Exit cleanly unless some test case of every joint reaches step k* = ``horizon``.
+
+    A test case starting at tick m needs ``history`` ticks before it and ``horizon`` after
+    it, all in one segment (consecutive valid ticks).
+    """
+    need = history + horizon + 1
+    for name, s in series.items():
+        longest = max((b - a for a, b in s.segments), default=0)
+        if longest < need:
+            raise ReachsetError(f"{', '.join(map(str, bags))}: joint {name}: too few samples for horizon {horizon}: "
+                                f"the longest run of consecutive valid ticks has {longest}, a test case needs {need}")
+
+
 def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
     """Run all sequential test cases for k = 0..horizon and call ``visit`` per step.
 

@@ -1941,6 +1941,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         raise ReachsetError("horizon must be >= 0")
     series, report = read_joint_series(list(bags), names, plant.dt)
     names = list(series)
+    cf.require_horizon(series, est.history, horizon, bags)
     if mode == "reidentify":
         missing = [n for n in names if not gains.get(n)]
         if missing:

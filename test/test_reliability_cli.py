@@ -297,13 +297,21 @@ def test_bad_bag_exits_2_with_one_line_naming_it(case, cmd, tmp_path, data, mode
     assert_no_output(out)
 
 
-@pytest.mark.parametrize("case", ["truncated_mcap", "no_plant_input", "no_common_joints", "empty_dir"])
+@pytest.mark.parametrize("case", ["truncated_mcap", "no_plant_input", "no_common_joints", "empty_dir", "too_few_samples"])
 def test_bad_bag_synthesize_exits_2_and_writes_nothing(case, tmp_path, data, capsys):
     bag, words = make_bad_bag(case, tmp_path, data)
     out = tmp_path / "out" / "gains.yaml"
     out.parent.mkdir()
     code, so, se = run(["synthesize", bag, "--horizon", HORIZON, "--out", out], capsys)
     assert_one_line_error(code, so, se, "synthesize", words)
+    assert_no_output(out)
+
+
+def test_validation_bag_too_short_for_the_horizon(tmp_path, data, clean_bag, capsys):
+    bag, words = make_bad_bag("too_few_samples", tmp_path, data)
+    out = tmp_path / "m.yaml"
+    code, so, se = run(["identify", clean_bag, "--horizon", HORIZON, "--validate", bag, "--out", out], capsys)
+    assert_one_line_error(code, so, se, "identify", [str(bag), *words])
     assert_no_output(out)
 
 

@@ -2,6 +2,7 @@
 from pathlib import Path
 
 from ..bags import read_joint_series
+from ..conformance import require_horizon  # noqa: F401  (re-exported for the commands)
 from ..errors import ReachsetError
 
 
@@ -29,20 +30,6 @@ def load_series(bags, joints, dt=0.004, restrict=None):
             raise ReachsetError(f"joint {missing[0]} of the model not found in the bags")
         return {j: series[j] for j in restrict}, report
     return read_joint_series([Path(b) for b in bags], names, dt)
-
-
-def require_horizon(series, history, horizon, bags):
-    """Exit cleanly unless some test case of every joint reaches step k* = ``horizon``.
-
-    A test case starting at tick m needs ``history`` ticks before it and ``horizon`` after
-    it, all in one segment (consecutive valid ticks).
-    """
-    need = history + horizon + 1
-    for name, s in series.items():
-        longest = max((b - a for a, b in s.segments), default=0)
-        if longest < need:
-            raise ReachsetError(f"{', '.join(map(str, bags))}: joint {name}: too few samples for horizon {horizon}: "
-                                f"the longest run of consecutive valid ticks has {longest}, a test case needs {need}")
 
 
 def check_out_path(out):

@@ -153,6 +153,7 @@ def run(args):
     vseries = vreport = None
     if args.validate:
         vseries, vreport = load_series(args.validate, list(series), args.dt)
+        require_horizon(vseries, est.history, args.horizon, args.validate)
     results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower,
                                    cost=args.cost, method=args.method)
     joints, js = {}, {}
