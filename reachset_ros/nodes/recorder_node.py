@@ -6,10 +6,6 @@ message definitions embedded, so any rosbags or mcap reader decodes the bag with
 package. Receive time is the bag's log time. The bag appears at ``output`` only when the
 recorder shuts down cleanly (SIGINT/SIGTERM); until then it is ``<output>.partial``.
 """
-import signal
-import sys
-
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
@@ -17,7 +13,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
 from ..bags import BagWriter
-from .common import SAFE_STOP_QOS, STATUS_QOS, desc
+from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node
 
 TOPICS = {
     "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
@@ -59,17 +55,7 @@ class RecorderNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args if args is not None else sys.argv)
-    node = RecorderNode()
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(RecorderNode, args)
 
 
 if __name__ == "__main__":
