@@ -251,6 +251,14 @@ class ReferenceGenerator:
         """``(q_d, qd_d, qdd_d)`` at time ``t`` [s] since the start (any order of calls)."""
         return self._segment_at(float(t)).evaluate(float(t))
 
+    def current_move(self, t: float) -> Segment:
+        """The move (with its rest) under way at time ``t`` [s]: ``t0 <= t < t_end``.
+
+        ``evaluate(t_end)`` of it is its end point at rest: where a reference that stops
+        taking new moves (``reference_node``'s ``hold``) stays.
+        """
+        return self._segment_at(float(t))
+
     def batch(self, ts):
         """:meth:`sample` at each time of ``ts``; arrays (len(ts), n)."""
         out = [self.sample(t) for t in np.asarray(ts, dtype=np.float64)]
@@ -260,3 +268,48 @@ class ReferenceGenerator:
         """Sampled at ``k dt`` for ``k dt < duration``: ``(t, Q, QD, QDD)``."""
         t = np.arange(int(np.ceil(duration / dt - 1e-9))) * dt
         return (t,) + self.batch(t)
+
+
+class ReferenceStream:
+    """The reference as ``reference_node`` streams it: sampled at measurement stamps, with hold.
+
+    Mutable state (the generator is the model): the first stamp seen is time 0; while
+    ``hold`` is set, the move under way is finished and the reference then rests at its
+    end point (velocity and acceleration 0); when ``hold`` is cleared, the moves continue
+    where they stopped: the generator's time stands still while holding, so the reference
+    stays continuous.
+
+    Parameters
+    ----------
+    generator : ReferenceGenerator
+
+    Examples
+    --------
+    >>> s = ReferenceStream(ReferenceGenerator(seed=3))
+    >>> q_d, qd_d, qdd_d = s.at(1_000_000_000)             # stamp in ns; t = 0 here
+    >>> q_d, qd_d, qdd_d = s.at(1_004_000_000, hold=True)
+    """
+
+    def __init__(self, generator: ReferenceGenerator):
+        self.generator = generator
+        self.t0_ns = None
+        self.paused = 0.0        # s of generator time skipped while holding
+        self.hold_move = None    # the move whose end point a hold rests at
+
+    def at(self, stamp_ns: int, hold: bool = False):
+        """``(q_d, qd_d, qdd_d)`` for the measurement stamped ``stamp_ns``."""
+        if self.t0_ns is None:
+            self.t0_ns = int(stamp_ns)
+        tau = (int(stamp_ns) - self.t0_ns) * 1e-9 - self.paused
+        if hold:
+            if self.hold_move is None:
+                self.hold_move = self.generator.current_move(tau)
+            if tau >= self.hold_move.t_end:
+                return self.hold_move.evaluate(self.hold_move.t_end)
+        elif self.hold_move is not None:
+            # resume: the generator's time continues from the end of the held move
+            delta = max(0.0, tau - self.hold_move.t_end)
+            self.paused += delta
+            tau -= delta
+            self.hold_move = None
+        return self.generator.sample(tau)

@@ -461,3 +461,49 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     assert first_check == first_monitor
     assert active and active[0] == first_monitor      # and that tick is the safe stop
     assert not chk["conformant"]
+
+
+def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
+    """/reference carries the generator's joint names whatever the order (and extra names)
+    of /joint_states, the value of each joint at the stamp; ``hold`` set through the
+    parameter service freezes it at the end point of the move under way."""
+    from reachset_ros.reference import ReferenceGenerator
+    from reachset_ros.robot import JOINT_NAMES
+    node = launch.start("reference_node", {"seed": 4}, tmp_path)
+    got = {}
+    ros.create_subscription(JointReference, "reference", lambda m: got.setdefault(
+        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, m), TICK_QOS)
+    js_pub = ros.create_publisher(JointState, "joint_states", TICK_QOS)
+    names = ["gripper_joint"] + list(reversed(JOINT_NAMES))   # another order, an extra joint first
+    t0 = 10**18
+
+    def send(k):
+        m = JointState(name=names, position=[0.0] * len(names))
+        to_stamp(m.header.stamp, t0 + k * 4_000_000)
+        js_pub.publish(m)
+
+    def exchange(k):     # one at a time: a burst could overrun the keep-last-50 queues
+        send(k)
+        assert spin_until(ros, lambda: t0 + k * 4_000_000 in got, 10.0), k
+
+    try:
+        assert spin_until(ros, lambda: (send(0), t0 in got)[1], 30.0)
+        gen = ReferenceGenerator(seed=4)
+        for k in range(1, 400):
+            exchange(k)
+        for k in (0, 1, 200, 399):
+            m = got[t0 + k * 4_000_000]
+            assert list(m.name) == list(JOINT_NAMES)
+            q, qd, _ = gen.sample(k * 4_000_000 * 1e-9)
+            assert list(m.position) == q.tolist() and list(m.velocity) == qd.tolist()
+        ok, why = set_remote_parameters(ros, "reference_node", {"hold": True})
+        assert ok, why
+        end = gen.current_move(400 * 0.004).t_end
+        k_rest = int(np.ceil(end / 0.004)) + 5
+        for k in range(400, k_rest + 50):
+            exchange(k)
+        rest = [got[t0 + k * 4_000_000] for k in range(k_rest, k_rest + 50)]
+        assert all(list(m.position) == list(rest[0].position) and not any(m.velocity) for m in rest)
+        assert list(rest[0].position) == gen.current_move(400 * 0.004).q1.tolist()
+    finally:
+        launch.stop([node])

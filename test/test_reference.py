@@ -82,3 +82,50 @@ def test_bad_configs_are_rejected():
         ReferenceGenerator(ReferenceConfig(), q0=[3.0, 0, 0, 0, 0, 0])
     with pytest.raises(ReachsetError, match="before the start"):
         ReferenceGenerator(ReferenceConfig()).sample(-1.0)
+
+
+def test_stream_without_hold_is_the_generator_at_the_stamps():
+    from reachset_ros.reference import ReferenceStream
+    gen, ref = ReferenceGenerator(seed=5), ReferenceGenerator(seed=5)
+    s = ReferenceStream(gen)
+    t0 = 1_700_000_000_123_000_000
+    for k in range(0, 5000, 7):
+        got = s.at(t0 + k * 4_000_000)
+        want = ref.sample(k * 4_000_000 * 1e-9)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_stream_hold_finishes_the_move_rests_and_resumes_continuously():
+    """hold: the move under way ends as planned, then rest at its end point; clearing it
+    continues with the next move as if no time had passed (continuous reference)."""
+    from reachset_ros.reference import ReferenceStream
+    ref = ReferenceGenerator(seed=2)
+    s = ReferenceStream(ReferenceGenerator(seed=2))
+    dt_ns = 4_000_000
+    k_hold = 300
+    move = ref.current_move(k_hold * 0.004)
+    assert move.t0 <= k_hold * 0.004 < move.t_end
+    k_end = int(np.ceil(move.t_end / 0.004))
+    out = []
+    for k in range(k_end + 500):
+        out.append(s.at(k * dt_ns, hold=k >= k_hold))
+    # until the end of the held move: exactly the generator
+    for k in range(k_end):
+        for a, b in zip(out[k], ref.sample(k * dt_ns * 1e-9)):
+            np.testing.assert_array_equal(a, b)
+    # after it: at rest at the move's end point
+    for k in range(k_end, k_end + 500):
+        np.testing.assert_array_equal(out[k][0], move.q1)
+        assert not np.any(out[k][1]) and not np.any(out[k][2])
+    # resume 2 s later: continuous, and the generator shifted by the time held
+    k_res = k_end + 500
+    paused = k_res * dt_ns * 1e-9 - move.t_end
+    prev = out[-1][0]
+    for k in range(k_res, k_res + 2000):
+        q, qd, qdd = s.at(k * dt_ns, hold=False)
+        want = ref.sample(k * dt_ns * 1e-9 - paused)
+        np.testing.assert_allclose(q, want[0], rtol=0, atol=1e-12)
+        assert np.max(np.abs(q - prev)) <= 0.7 * 0.004 + 1e-9    # |qd_d| <= qd_max: no jump
+        prev = q
+    assert ref.current_move(k_res * 0.004 + 8.0 - paused).t0 > move.t0   # new moves again

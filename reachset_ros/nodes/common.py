@@ -82,14 +82,18 @@ def make_executor():
     Measured on the 2-core machine with the demo's nodes (sim, reference, observer,
     controller, monitor): the closed loop runs at 96-99 % of real time (250 Hz), against
     55 % with the ``SingleThreadedExecutor``, which rebuilds its wait set in Python for
-    every callback (about 70 % of each node's CPU time). ``REACHSET_EXECUTOR=single``
-    selects the ``SingleThreadedExecutor``.
+    every callback (about 70 % of each node's CPU time); ``benchmarks/bench_closed_loop.py``
+    measures both. ``REACHSET_EXECUTOR=single`` selects the ``SingleThreadedExecutor``, as
+    does an rclpy without ``rclpy.experimental.EventsExecutor`` (older than Jazzy's 7.1.x).
     """
     import os
+    from rclpy.executors import SingleThreadedExecutor
     if os.environ.get("REACHSET_EXECUTOR", "events") == "single":
-        from rclpy.executors import SingleThreadedExecutor
         return SingleThreadedExecutor()
-    from rclpy.experimental import EventsExecutor
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return SingleThreadedExecutor()
     return EventsExecutor()
 
 
@@ -137,6 +141,66 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
         results = [res.result] if atomically else list(res.results)
         bad = [r.reason for r in results if not r.successful]
         return (not bad), "; ".join(bad)
+    finally:
+        node.destroy_client(client)
+
+
+def get_remote_parameters(node, target: str, names, timeout=10.0):
+    """Read parameters of node ``target`` through its ``get_parameters`` service.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that creates the client and is spun until the answer arrives (not one that
+        an executor is spinning right now).
+    target : str
+        Name of the node whose parameters are read (``/{target}/get_parameters``).
+    names : sequence of str
+    timeout : float
+        Seconds to wait for the service, and again for the answer.
+
+    Returns
+    -------
+    values : dict or None
+        ``{name: value}`` with Python values (bool, int, float, str; arrays as lists, the
+        inverse of :func:`parameter_value`); None when the service is not available, does
+        not answer in time, or a name is not a declared parameter of ``target``.
+    reason : str
+        Empty on success, else one line naming ``target`` and the problem.
+    """
+    from rcl_interfaces.msg import ParameterType as T
+    from rcl_interfaces.srv import GetParameters
+    fields = {T.PARAMETER_BOOL: "bool_value", T.PARAMETER_INTEGER: "integer_value",
+              T.PARAMETER_DOUBLE: "double_value", T.PARAMETER_STRING: "string_value",
+              T.PARAMETER_BYTE_ARRAY: "byte_array_value", T.PARAMETER_BOOL_ARRAY: "bool_array_value",
+              T.PARAMETER_INTEGER_ARRAY: "integer_array_value", T.PARAMETER_DOUBLE_ARRAY: "double_array_value",
+              T.PARAMETER_STRING_ARRAY: "string_array_value"}
+
+    def python_value(pv):
+        if pv.type not in fields:          # PARAMETER_NOT_SET: not declared on the target
+            return None
+        v = getattr(pv, fields[pv.type])
+        if pv.type == T.PARAMETER_DOUBLE_ARRAY:
+            return [float(x) for x in v]
+        return list(v) if fields[pv.type].endswith("_array_value") else v
+
+    names = list(names)
+    client = node.create_client(GetParameters, f"/{target}/get_parameters")
+    try:
+        if not client.wait_for_service(timeout_sec=timeout):
+            return None, f"{target}: parameter service not available"
+        fut = client.call_async(GetParameters.Request(names=names))
+        rclpy.spin_until_future_complete(node, fut, timeout_sec=timeout)
+        if not fut.done():
+            return None, f"{target}: parameter service timed out"
+        got = list(fut.result().values)
+        if len(got) != len(names):
+            return None, f"{target}: get_parameters answered {len(got)} values for {len(names)} names"
+        values = {n: python_value(v) for n, v in zip(names, got)}
+        unset = [n for n, v in values.items() if v is None]
+        if unset:
+            return None, f"{target}: no parameter {unset[0]}"
+        return values, ""
     finally:
         node.destroy_client(client)
 

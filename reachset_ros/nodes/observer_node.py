@@ -20,8 +20,8 @@ from .gain_params import current_values, declare_gain_parameters, gains_from, pr
 class ObserverNode(Node):
     def __init__(self):
         super().__init__("observer_node")
-        self.declare_parameter("joints", list(JOINT_NAMES), desc("joints, in this order"))
-        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("joints", list(JOINT_NAMES), desc("joints, in this order", read_only=True))
+        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0, read_only=True))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         self.dt = float(self.get_parameter("dt").value)

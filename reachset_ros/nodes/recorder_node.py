@@ -31,8 +31,8 @@ TOPICS = {
 class RecorderNode(Node):
     def __init__(self):
         super().__init__("recorder_node")
-        self.declare_parameter("output", "bags/recording", desc("rosbag2 directory to create"))
-        self.declare_parameter("topics", list(TOPICS), desc("topics to record"))
+        self.declare_parameter("output", "bags/recording", desc("rosbag2 directory to create", read_only=True))
+        self.declare_parameter("topics", list(TOPICS), desc("topics to record", read_only=True))
         self.writer = BagWriter(self.get_parameter("output").value)
         self.writer.__enter__()
         self.counts = {}

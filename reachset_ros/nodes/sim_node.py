@@ -25,7 +25,7 @@ from ..reference import ReferenceConfig
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up
-CATCH_UP = 0.1
+CATCH_UP = 1.0
 
 FAULTS = ("none", "payload", "torque", "acceleration", "bias", "frozen", "nan")
 

@@ -7,8 +7,21 @@ responsive and the two agree to the bit — publishes the result on ``synthesis/
 applies the gains and the model through the other nodes' parameter services:
 ``controller_node`` first (it re-checks stability and R_u ⊆ U_p and may refuse), then
 ``observer_node``, then ``monitor_node``. Nothing is applied from a failed or
-non-conformant result. Mode ``reidentify`` keeps the gains of the current model
-(``model_file`` parameter, updated after each successful apply) and only updates the sets.
+non-conformant result.
+
+Gains are applied by joint name: the controller and observer read their per-joint arrays
+in the order of their own ``joints`` parameter (an array of length 1 is one value for all
+joints), so the node first reads each target's current ``joints``, types and arrays
+(``get_parameters``) and sends full arrays in that order, the synthesised joints with their
+new values and every other joint with its current one. It refuses before anything is
+applied when a synthesised joint is not one of a target's joints, or when the synthesis'
+observer/controller type differs from a target's while the synthesis does not cover all of
+that target's joints (the type is one parameter per node). When a later target refuses,
+the targets already updated are set back to their previous values of exactly the
+parameters that were set, in reverse order, and the reason says whether that succeeded;
+the node's own ``model_file`` changes only after every target accepted. Mode
+``reidentify`` keeps the gains of the current model (``model_file`` parameter) and only
+updates the sets.
 """
 import json
 import subprocess
@@ -22,19 +35,100 @@ from rclpy.parameter import Parameter
 from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
-from .common import SAFE_STOP_QOS, desc, set_remote_parameters, spin_node
+from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_parameters, spin_node
 
 GAIN_KEYS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
+#: per-joint parameters each target takes from a synthesis, besides the ``observer`` and
+#: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
+TARGET_KEYS = {"controller_node": GAIN_KEYS + ("u_max",),
+               "observer_node": tuple(k for k in GAIN_KEYS if k not in ("omega", "zeta"))}
+TYPE_KEYS = ("observer", "controller")
 
 
-def gain_parameters(joints, per_joint_gains):
-    """Parameter values for the observer/controller nodes from per-joint gains dicts."""
-    first = per_joint_gains[joints[0]]
-    vals = {"observer": first["observer"], "controller": first["controller"]}
-    for k in GAIN_KEYS:
-        if all(k in per_joint_gains[j] for j in joints):
-            vals[k] = [float(per_joint_gains[j][k]) for j in joints]
-    return vals
+def one_line(text):
+    """``text`` with its line breaks and runs of white space folded into single spaces."""
+    return " ".join(str(text).split())
+
+
+def per_joint(value, n):
+    """A per-joint array parameter as ``n`` floats, the way the nodes read it.
+
+    Parameters
+    ----------
+    value : sequence of float
+        The parameter's value: one value for all joints, or one per joint (a longer array
+        gives its first ``n``, as the controller reads ``u_max``).
+    n : int
+        Number of joints of the node.
+
+    Returns
+    -------
+    list of float or None
+        None when ``value`` has neither 1 nor at least ``n`` values.
+    """
+    vals = [float(x) for x in value]
+    if len(vals) == 1:
+        return vals * n
+    return vals[:n] if len(vals) >= n else None
+
+
+def target_values(target, current, synthesis, keys):
+    """New parameter values of a controller or observer node for a synthesis, by joint name.
+
+    Parameters
+    ----------
+    target : str
+        Node name (for the reason).
+    current : dict
+        The node's current ``joints``, ``observer``, ``controller`` and ``keys`` values.
+    synthesis : dict
+        ``{joint: gains}`` of the synthesised joints (model-file gains: ``observer``,
+        ``controller``, the gain parameters, ``u_max``).
+    keys : sequence of str
+        The per-joint array parameters this node takes.
+
+    Returns
+    -------
+    values : dict or None
+        ``observer``, ``controller`` and, for every key all synthesised joints have, the
+        full array in the order of the node's ``joints``: the synthesised joints' new
+        values, the other joints' current ones. None when refused.
+    reason : str
+        Empty, or one line naming the node and the joint: a synthesised joint the node
+        does not have, an array of the wrong length, or a type change (observer or
+        controller) for a synthesis that does not cover all of the node's joints.
+    """
+    joints = [j for j in current["joints"] if j]
+    for j in synthesis:
+        if j not in joints:
+            return None, f"{target}: joint {j} is not one of its joints ({', '.join(joints)})"
+    uncovered = [j for j in joints if j not in synthesis]
+    values = {}
+    for t in TYPE_KEYS:
+        kinds = {j: str(g.get(t, "")) for j, g in synthesis.items()}
+        if len(set(kinds.values())) > 1:
+            a, b = sorted(set(kinds.values()))[:2]
+            ja = next(j for j, k in kinds.items() if k == a)
+            jb = next(j for j, k in kinds.items() if k == b)
+            return None, (f"{target}: the synthesis has {t} {a} for joint {ja} but {b} for joint {jb}; "
+                          f"the node runs one {t} type for all its joints")
+        kind = next(iter(kinds.values()))
+        if kind != current[t] and uncovered:
+            return None, (f"{target}: the synthesis' {t} is {kind}, the node's is {current[t]}, and joint "
+                          f"{uncovered[0]} is not synthesised; the {t} type is one per node, so synthesise "
+                          f"all of its joints ({', '.join(joints)})")
+        values[t] = kind
+    for k in keys:
+        if not all(k in g for g in synthesis.values()):
+            continue
+        arr = per_joint(current[k], len(joints))
+        if arr is None:
+            return None, (f"{target}: parameter {k} has {len(current[k])} values for {len(joints)} joints "
+                          f"(joint {joints[len(current[k])]} has none)")
+        for j, g in synthesis.items():
+            arr[joints.index(j)] = float(g[k])
+        values[k] = arr
+    return values, ""
 
 
 class SynthesisNode(Node):
@@ -130,24 +224,89 @@ class SynthesisNode(Node):
         return m
 
     def apply(self, data, model_file):
-        joints = list(data["joints"])
-        gains = {n: j["gains"] for n, j in data["joints"].items()}
-        vals = gain_parameters(joints, gains)
+        """Apply a successful synthesis to the ``targets``, by joint name, all or nothing.
+
+        Parameters
+        ----------
+        data : dict
+            The ``reachset synthesize --json`` output; its ``joints`` are the synthesised
+            joints, each with its ``gains`` and ``u_max``.
+        model_file : str
+            The model it wrote.
+
+        Returns
+        -------
+        applied : bool
+        reason : str
+            Empty when applied, else one line: which node refused or could not be read
+            (naming the joint where one is at fault), and, when earlier targets had
+            accepted, whether setting them back succeeded.
+
+        Notes
+        -----
+        Per target, in the order controller_node, observer_node, monitor_node (those in
+        ``targets``), the current values are read through ``get_parameters`` and the new
+        ones planned (:func:`target_values`; the controller also gets ``u_max`` and
+        ``model_file``, the monitor ``model_file``) before anything is set, so a plan that
+        cannot work (a joint a target lacks, a partial synthesis that would change a node's
+        observer/controller type, a target not answering) changes nothing. Each target's
+        parameters are set atomically; on a refusal the targets already updated get their
+        previous values of the same parameters back, the last updated first. The node's
+        own ``model_file`` is set only when every target accepted.
+        """
+        synthesis = {n: {**j.get("gains", {}), **({"u_max": j["u_max"]} if "u_max" in j else {})}
+                     for n, j in data["joints"].items()}
         targets = list(self.get_parameter("targets").value)
-        steps = []
-        if "controller_node" in targets:
-            u_max = [float(data["joints"][n].get("u_max", 26.0)) for n in joints]
-            steps.append(("controller_node", {**vals, "model_file": model_file, "u_max": u_max}))
-        if "observer_node" in targets:
-            steps.append(("observer_node", {k: v for k, v in vals.items() if k != "zeta" and k != "omega"}))
+        plan = []      # (node, new values, previous values of the same parameters)
+        for node, keys in TARGET_KEYS.items():
+            if node not in targets:
+                continue
+            names = ["joints", *TYPE_KEYS, *keys] + (["model_file"] if node == "controller_node" else [])
+            current, why = get_remote_parameters(self.client_node, node, names)
+            if current is None:
+                return False, why
+            values, why = target_values(node, current, synthesis, keys)
+            if values is None:
+                return False, why
+            if node == "controller_node":
+                values["model_file"] = model_file
+            plan.append((node, values, {k: current[k] for k in values}))
         if "monitor_node" in targets:
-            steps.append(("monitor_node", {"model_file": model_file}))
-        for node, values in steps:
+            current, why = get_remote_parameters(self.client_node, "monitor_node", ["model_file"])
+            if current is None:
+                return False, why
+            plan.append(("monitor_node", {"model_file": model_file}, current))
+        done = []
+        for node, values, previous in plan:
             ok, why = set_remote_parameters(self.client_node, node, values)
             if not ok:
-                return False, f"{node} refused: {why}"
+                return False, f"{node} refused: {one_line(why)}; {self.roll_back(done)}"
+            done.append((node, previous))
         self.set_parameters([Parameter("model_file", value=model_file)])
         return True, ""
+
+    def roll_back(self, done):
+        """Set the targets in ``done`` (``(node, previous values)``) back, the last first.
+
+        Returns
+        -------
+        str
+            What happened, for the refusal's reason: nothing to undo, rolled back, or which
+            node could not be set back (and why): that node keeps the new values.
+        """
+        if not done:
+            return "nothing was applied"
+        back, failed = [], []
+        for node, previous in reversed(done):
+            ok, why = set_remote_parameters(self.client_node, node, previous)
+            if ok:
+                back.append(node)
+            else:
+                failed.append(f"{node} ({one_line(why)})")
+        if not failed:
+            return f"rolled back {', '.join(back)} to the previous values"
+        return ((f"rolled back {', '.join(back)}; " if back else "")
+                + f"ROLLBACK FAILED for {', '.join(failed)}, which keeps the new values")
 
 
 def main(args=None):
