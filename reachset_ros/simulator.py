@@ -329,7 +329,7 @@ class SimulatedArm:
 
     def inject(self, fault: Fault) -> int:
         """Add a fault (active from ``fault.start_s`` after reset); returns
-        :meth:`onset_stamp`. Faults persist until the next :meth:`reset`."""
+        :meth:`onset_stamp`. Faults persist until :meth:`clear_faults` or the next :meth:`reset`."""
         if self.state is None:
             raise ReachsetError("simulator: inject() before reset()")
         if not isinstance(fault, Fault):
@@ -347,6 +347,21 @@ class SimulatedArm:
         if isinstance(fault, NaNSamples):
             st.nan_left[id(fault)] = int(fault.count)
         return self.onset_stamp(fault)
+
+    def clear_faults(self) -> int:
+        """Remove every injected fault from now on; returns how many were removed.
+
+        The next measurement and the physics from the next substep are fault-free (a payload
+        is dropped, a frozen sensor thaws, a bias disappears); what a physical fault already
+        did to the motion stays. Faults of the same kind can be injected again.
+        """
+        st = self.state
+        if st is None:
+            raise ReachsetError("simulator: clear_faults() before reset()")
+        n = len(st.faults)
+        st.faults, st.payload_models, st.frozen, st.nan_left = [], {}, {}, {}
+        st.truth = self._truth0
+        return n
 
     def step(self, tau) -> Measurement:
         """Command ``tau`` [N m] (computed from the latest measurement); advance one tick.

@@ -507,3 +507,21 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
         assert list(rest[0].position) == gen.current_move(400 * 0.004).q1.tolist()
     finally:
         launch.stop([node])
+
+
+@pytest.mark.parametrize("params, words", [
+    ({"omega": [60.0]}, "closed loop unstable"),
+    ({"u_max": [float("nan")]}, "u_max must be finite"),
+    ({"model_file": "/nonexistent/model.yaml"}, "model file not found"),
+])
+def test_controller_refuses_to_start_with_a_configuration_it_would_refuse_later(tmp_path, params, words):
+    """The start-up parameters pass the same checks as a change through the parameter
+    service: else the node exits with status 2 and one line naming the reason, never drives."""
+    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], **params}, tmp_path)
+    try:
+        assert ctl.proc.wait(timeout=60) == 2
+    finally:
+        launch.stop([ctl])
+    lines = [ln for ln in ctl.log.read_text().splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("ControllerNode: error: ") and words in lines[0], lines[0]

@@ -245,3 +245,40 @@ def test_long_run_with_friction_is_stable(model):
         m = arm.step(tau)
     _, q, qd = arm.true_state
     assert np.all(np.isfinite(q)) and np.abs(q - Q0).max() < 0.5
+
+
+@pytest.mark.parametrize("fault", [f for f in FAULTS if not f.physical], ids=lambda f: type(f).__name__)
+def test_cleared_sensor_fault_gives_the_fault_free_measurements_again(model, fault):
+    cfg = sim.SimConfig.realistic(model)
+
+    def run(with_fault, clear_at=60):
+        arm = sim.SimulatedArm(cfg, seed=11)
+        data = rb.create_data(model)
+        out = [arm.reset(Q0)]
+        if with_fault:
+            arm.inject(fault)
+        for k in range(120):
+            if with_fault and k == clear_at:
+                assert arm.clear_faults() == 1
+            q = Q0 + 0.1 * np.sin(k * DT * np.arange(1, 7))
+            out.append(arm.step(rb.feedback_linearization(model, data, q, np.zeros(6), u_profile(k, 0.5))))
+        return out
+
+    base, faulty = run(False), run(True)
+    assert any(not np.array_equal(a.q_measured, b.q_measured, equal_nan=True) for a, b in zip(base[:61], faulty[:61]))
+    for a, b in zip(base[61:], faulty[61:]):         # sensor faults never touched the physics
+        np.testing.assert_array_equal(a.q_measured, b.q_measured)
+        np.testing.assert_array_equal(a.qd_measured, b.qd_measured)
+
+
+def test_cleared_payload_restores_the_true_robot(model):
+    arm = sim.SimulatedArm(sim.SimConfig.realistic(model), seed=1)
+    arm.reset(Q0)
+    base = arm.true_robot
+    arm.inject(sim.Payload(start_s=0.0, mass=2.0))
+    for _ in range(5):
+        arm.step(np.zeros(6))
+    assert arm.true_robot is not base
+    assert arm.clear_faults() == 1 and arm.true_robot is base
+    arm.step(np.zeros(6))
+    assert arm.true_robot is base and arm.state.faults == []

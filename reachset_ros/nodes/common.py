@@ -45,8 +45,15 @@ def spin_node(node_cls, args=None, **kwargs):
     tick half published, a bag half written).
     """
     from rclpy.signals import SignalHandlerOptions
+    from ..errors import ReachsetError
     rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = node_cls(**kwargs)
+    try:
+        node = node_cls(**kwargs)
+    except ReachsetError as e:
+        # a configuration the node must not run with: one line, exit status 2, nothing started
+        print(f"{node_cls.__name__}: error: {e}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
     executor = make_executor()
     executor.add_node(node)
     node.callback_errors = 0

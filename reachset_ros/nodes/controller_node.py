@@ -89,8 +89,14 @@ class ControllerNode(Node):
         path = self.get_parameter("model_file").value
         if path:
             self.model = mdl.load(path)
-        self.gains = gains_from(current_values(self), self.joints)
-        self.u_max = u_max_array(self.get_parameter("u_max").value, len(self.joints))
+        # the start-up configuration passes the same checks as a later change (stable closed
+        # loops; R_u inside U_p where the model has the joint): else the node does not start
+        values = dict(current_values(self), u_max=self.get_parameter("u_max").value,
+                      u_ff_bound=self.get_parameter("u_ff_bound").value)
+        try:
+            self.gains, self.u_max = self.validate(values, self.model)
+        except ReachsetError as e:
+            raise ReachsetError(f"start-up parameters refused: {e}") from None
         self.refs = {}
         self.stop_active = False
         self.stop_known = not self.get_parameter("wait_for_monitor").value
