@@ -86,11 +86,11 @@ def spin_until_signal(node, executor):
 def make_executor():
     """The executor every node spins: rclpy's ``EventsExecutor`` (C++, callbacks in arrival order).
 
-    Measured on the 2-core machine with the demo's nodes (sim, reference, observer,
-    controller, monitor): the closed loop runs at 96-99 % of real time (250 Hz), against
-    55 % with the ``SingleThreadedExecutor``, which rebuilds its wait set in Python for
-    every callback (about 70 % of each node's CPU time); ``benchmarks/bench_closed_loop.py``
-    measures both. ``REACHSET_EXECUTOR=single`` selects the ``SingleThreadedExecutor``, as
+    On the 2-core machine the demo's closed loop (sim, reference, observer, controller,
+    monitor) keeps real time (250 Hz) with it and runs at 44 % of real time with the
+    ``SingleThreadedExecutor``, which rebuilds its wait set in Python for every callback
+    (about 70 % of each node's CPU time): ``benchmarks/bench_closed_loop.py``,
+    docs/performance.md. ``REACHSET_EXECUTOR=single`` selects the ``SingleThreadedExecutor``, as
     does an rclpy without ``rclpy.experimental.EventsExecutor`` (older than Jazzy's 7.1.x).
     """
     import os
