@@ -1,8 +1,9 @@
 """synthesis_node: offline identification / synthesis from bags, as a ROS service.
 
 ``~/synthesize`` (reachset_msgs/srv/Synthesize) runs ``reachset synthesize`` on the given
-bags — the very same code path as the command line, in a child process so the node stays
-responsive and the two agree to the bit — publishes the result on ``synthesis/result``
+bags — the very same code path as the command line, in a child process, so the two agree
+to the bit (the node's executor waits for it: the node answers nothing else meanwhile) —
+publishes the result on ``synthesis/result``
 (latched), and, when ``apply`` is set and every joint is conformant with R_u inside U_p,
 applies the gains and the model through the other nodes' parameter services:
 ``controller_node`` first (it re-checks stability and R_u ⊆ U_p and may refuse), then
