@@ -20,3 +20,15 @@ def lwa4p_dir():
     if not LWA4P_DATA.is_dir():
         pytest.skip(f"real recordings not found at {LWA4P_DATA}")
     return LWA4P_DATA
+
+
+@pytest.fixture(scope="module")
+def ros():
+    """An rclpy context and a driver node for one test module (real DDS, this host only)."""
+    import rclpy
+    from rclpy.node import Node
+    rclpy.init()
+    node = Node("test_driver")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()

@@ -19,15 +19,6 @@ from reachset_ros.plant import lwa4p_joint_plant
 JOINTS = ["arm_1_joint", "arm_2_joint"]
 
 
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("test_driver")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
-
-
 def spin_until(node, cond, timeout):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 import rclpy
 import yaml
-from rclpy.node import Node
 from reachset_msgs.srv import Synthesize
 
 from reachset_ros import launch
@@ -37,15 +36,6 @@ NAMES = {"controller_node": ["joints", "observer", "controller", *GAIN_KEYS, "u_
          "observer_node": ["joints", "dt", "observer", "controller", *GAIN_KEYS],
          "monitor_node": ["joints", "model_file"],
          "synthesis_node": ["model_file", "observer"]}
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("synthesis_test_driver")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 @pytest.fixture(scope="module")

@@ -169,27 +169,14 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
     Returns
     -------
     values : dict or None
-        ``{name: value}`` with Python values (bool, int, float, str; arrays as lists, the
-        inverse of :func:`parameter_value`); None when the service is not available, does
-        not answer in time, or a name is not a declared parameter of ``target``.
+        ``{name: value}`` with Python values (``rclpy.parameter.parameter_value_to_python``:
+        bool, int, float, str, arrays as lists); None when the service is not available,
+        does not answer in time, or a name is not a declared parameter of ``target``.
     reason : str
         Empty on success, else one line naming ``target`` and the problem.
     """
-    from rcl_interfaces.msg import ParameterType as T
     from rcl_interfaces.srv import GetParameters
-    fields = {T.PARAMETER_BOOL: "bool_value", T.PARAMETER_INTEGER: "integer_value",
-              T.PARAMETER_DOUBLE: "double_value", T.PARAMETER_STRING: "string_value",
-              T.PARAMETER_BYTE_ARRAY: "byte_array_value", T.PARAMETER_BOOL_ARRAY: "bool_array_value",
-              T.PARAMETER_INTEGER_ARRAY: "integer_array_value", T.PARAMETER_DOUBLE_ARRAY: "double_array_value",
-              T.PARAMETER_STRING_ARRAY: "string_array_value"}
-
-    def python_value(pv):
-        if pv.type not in fields:          # PARAMETER_NOT_SET: not declared on the target
-            return None
-        v = getattr(pv, fields[pv.type])
-        if pv.type == T.PARAMETER_DOUBLE_ARRAY:
-            return [float(x) for x in v]
-        return list(v) if fields[pv.type].endswith("_array_value") else v
+    from rclpy.parameter import parameter_value_to_python
 
     names = list(names)
     client = node.create_client(GetParameters, f"/{target}/get_parameters")
@@ -203,7 +190,7 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
         got = list(fut.result().values)
         if len(got) != len(names):
             return None, f"{target}: get_parameters answered {len(got)} values for {len(names)} names"
-        values = {n: python_value(v) for n, v in zip(names, got)}
+        values = {n: parameter_value_to_python(v) for n, v in zip(names, got)}
         unset = [n for n, v in values.items() if v is None]
         if unset:
             return None, f"{target}: no parameter {unset[0]}"

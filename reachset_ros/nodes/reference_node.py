@@ -32,8 +32,7 @@ class ReferenceNode(Node):
                                                    "until cleared (no new moves)"))
         cfg = ReferenceConfig(qd_max=float(self.get_parameter("qd_max").value),
                               qdd_max=float(self.get_parameter("qdd_max").value))
-        self.gen = ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value))
-        self.stream = ReferenceStream(self.gen)
+        self.stream = ReferenceStream(ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value)))
         self.names = list(JOINT_NAMES)
         self.pub = self.create_publisher(JointReference, "reference", TICK_QOS)
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)

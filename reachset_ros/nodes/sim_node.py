@@ -6,9 +6,9 @@ time, anchored to the wall clock at start); applies the latest ``/effort_command
 lockstep mode (``lockstep_timeout`` > 0, the default) a tick waits, up to that timeout,
 for the command computed from the previous measurement, so that DDS latency on a loaded
 machine does not add delays the model does not have; the stamps stay on the simulation
-clock. With 0 it runs free like a real drive and holds the last command. Faults
-are injected through the ``fault`` parameters (``none`` clears them all); the stamp of the first measurement a fault
-can change is published, latched, on ``/sim/fault_onset`` (std_msgs/Header, frame_id = the
+clock. With 0 it runs free like a real drive and holds the last command. Faults are
+injected through the ``fault`` parameters (``none`` clears them all); the stamp of the
+first measurement a fault can change is published, latched, on ``/sim/fault_onset`` (std_msgs/Header, frame_id = the
 fault's description).
 """
 import time
@@ -55,7 +55,8 @@ class SimNode(Node):
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
                                     "before stepping with the previous one (0: free-running)", 0.0, 1.0))
-        self.declare_parameter("fault", "none", desc("inject now: " + " | ".join(FAULTS[1:]) + "; none: clear all faults"))
+        self.declare_parameter("fault", "none",
+                               desc("inject now: " + " | ".join(FAULTS[1:]) + "; none: clear all faults"))
         self.declare_parameter("fault_joint", "arm_1_joint", desc("joint of the fault"))
         self.declare_parameter("fault_magnitude", 5.0,
                                desc("kg (payload), N m (torque), rad/s^2 (acceleration), rad (bias), samples (nan)"))
@@ -90,14 +91,14 @@ class SimNode(Node):
             return
         self.tau = tau
         self.fresh = True
-        if time.monotonic() >= self.next_wall:
-            self.tick()  # the period is due and the awaited command is here: step now
+        self.tick()  # the awaited command is here: step now if the period is due
 
     def on_set_parameters(self, params):
         for p in params:
             if p.name == "fault" and p.value == "none":
                 n = self.arm.clear_faults()
-                self.get_logger().warning(f"faults cleared ({n} removed) from stamp {self.arm.stamp(self.arm.state.k + 1)} ns")
+                next_stamp = self.arm.stamp(self.arm.state.k + 1)
+                self.get_logger().warning(f"faults cleared ({n} removed) from stamp {next_stamp} ns")
             elif p.name == "fault":
                 joint = self.get_parameter("fault_joint").value
                 mag = float(self.get_parameter("fault_magnitude").value)
