@@ -1,12 +1,15 @@
-"""`reachset demo` end to end, exactly as the issue's "done when" runs it (about 2.5 min).
+"""`reachset demo` end to end, exactly as the issue's "done when" runs it (3-4 min).
 
 Every node a separate process over Fast DDS, the simulated arm, two synthesis iterations
-applied live through the parameter services, a fault injected and caught. Read back from
-the recorded bag, on the stamp clock (the clock of ``fault_injected_ns`` and
-``safe_stop_ns`` in the demo's JSON): ``/conformance/status`` for every tick at >= 240 Hz
-until the stop, no safe stop before the fault, the first active ``/safe_stop`` within
-100 ms after it, and the monitor's verdicts equal to ``reachset check`` on the same bag.
-How fast the loop runs in wall-clock time is a benchmark (benchmarks/bench_demo.py).
+applied live through the parameter services, a fault injected and caught. The demo runs on
+the simulation's time (``/clock``; the recorder writes it as the bag's log time, as
+``ros2 bag record --use-sim-time`` does), so the story is the same however loaded the
+machine is. Read back from the recorded bag: ``/conformance/status`` for every tick at
+>= 240 Hz until the stop, on the message stamps and on the bag's log time; no safe stop
+before the fault; the first active ``/safe_stop`` within 100 ms after it; at least 15 of
+the 18 s of monitored ticks before the fault in the bag; the monitor's verdicts equal to
+``reachset check`` on the same bag. How fast the simulation runs in wall-clock time is a
+benchmark (benchmarks/bench_demo.py).
 """
 import json
 import subprocess
@@ -54,8 +57,18 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     st = np.array(sorted(s for s, _, _ in status if s <= active[0]))
     rate = (len(st) - 1) / ((st[-1] - st[0]) * 1e-9)
     assert rate >= 240.0, rate
-    assert len(st) >= 2500                # at least 10 s of monitored ticks before the stop
     assert np.all(np.diff(st) == 4_000_000), np.unique(np.diff(st))
+    # the fault came 18 s of simulated time into the monitored run (less the first ticks,
+    # before the recorder had matched the monitor's publisher: 0.6 s seen on a loaded machine)
+    assert (fault - st[0]) * 1e-9 >= 15.0, (fault - st[0]) * 1e-9
+    # the bag's log time is the simulation's clock: the same rate there, and each status
+    # logged within a few ticks of its stamp (the monitor is not in the loop and may lag)
+    log_t = np.array(sorted(t for s, _, t in status if s <= active[0]))
+    log_rate = (len(log_t) - 1) / ((log_t[-1] - log_t[0]) * 1e-9)
+    assert log_rate >= 240.0, log_rate
+    lag = np.array([t - s for s, _, t in status]) * 1e-9
+    assert np.all(lag > -0.1) and np.median(lag) < 0.5, (lag.min(), np.median(lag), lag.max())
+    assert res["real_time_factor"] and all(v > 0 for v in res["real_time_factor"].values())
     # the monitor's verdicts equal `reachset check` on the same bag
     chk = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "check", str(record), "--model",
                           res["monitor_model"], "--json"], capture_output=True, text=True, timeout=300)

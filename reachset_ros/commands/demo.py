@@ -96,12 +96,12 @@ def summarize(res, record, workdir):
     status, stops, onset = [], [], None
     with AnyReader([Path(record)], default_typestore=ts) as reader:
         conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop", "/sim/fault_onset")]
-        for c, _t, raw in reader.messages(connections=conns):
+        for c, t, raw in reader.messages(connections=conns):
             m = ts.deserialize_cdr(raw, c.msgtype)
             h = m if c.topic == "/sim/fault_onset" else m.header
             st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
             if c.topic == "/conformance/status":
-                status.append((st, bool(m.conformant)))
+                status.append((st, bool(m.conformant), t))
             elif c.topic == "/safe_stop":
                 stops.append((st, bool(m.active), m.reason))
             else:
@@ -113,6 +113,9 @@ def summarize(res, record, workdir):
     until = stop_ns if stop_ns is not None else (st[-1] if len(st) else 0)
     before = st[st <= until] if len(st) else st
     rate = (len(before) - 1) / ((before[-1] - before[0]) * 1e-9) if len(before) > 1 else 0.0
+    # the same on the bag's log time (the recorder's clock: the simulation's /clock)
+    log_t = np.array(sorted(s[2] for s in status if s[0] <= until), dtype=np.int64)
+    log_rate = (len(log_t) - 1) / ((log_t[-1] - log_t[0]) * 1e-9) if len(log_t) > 1 else 0.0
     out = {
         "fault_injected_ns": fault_ns, "safe_stop_ns": stop_ns,
         "detection_latency_ms": (stop_ns - fault_ns) / 1e6 if (fault_ns and stop_ns) else None,
@@ -120,6 +123,7 @@ def summarize(res, record, workdir):
             bool(first_stop) and not fault_ns),
         "safe_stop": res.get("safe_stop"), "fault": res.get("fault"),
         "status_messages": len(status), "status_rate_hz_until_stop": rate,
+        "status_rate_hz_log_time": log_rate, "real_time_factor": res.get("real_time_factor"),
         "synthesis": res.get("synthesis"), "reidentify": res.get("reidentify"),
         "record": str(record), "early_stop": res.get("early_stop"),
         "monitor_model": res.get("monitor_model"), "margin": res.get("margin"),
@@ -154,7 +158,11 @@ def human_summary(s):
                      f"{t['run_radius'][1]:.3g} ({t['share_inside_run']:.1%} inside)")
         lines.append(line)
     lines.append(f"ticks monitored until the stop: {s['ticks_monitored']}; status messages: {s['status_messages']} "
-                 f"at {s['status_rate_hz_until_stop']:.1f} Hz until the stop")
+                 f"at {s['status_rate_hz_until_stop']:.1f} Hz until the stop "
+                 f"({s['status_rate_hz_log_time']:.1f} Hz on the bag's log time)")
+    if s.get("real_time_factor"):
+        lines.append("real-time factor (simulated / wall time): " +
+                     ", ".join(f"{k} {v:.2f}" for k, v in s["real_time_factor"].items()))
     lines.append(f"fault: {s['fault']} at stamp {s['fault_injected_ns']}")
     if s["safe_stop"]:
         lines.append(f"safe stop at {s['safe_stop_ns']} ({s['detection_latency_ms']} ms after the fault): "

@@ -12,6 +12,10 @@ SAFE_STOP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 #: per-tick data: reliable, a few ticks of history.
 TICK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+#: /clock from the simulator: reliable (matches rclpy's best-effort TimeSource subscription
+#: and a reliable one), only the newest time matters.
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
 
 
 def stamp_ns(stamp) -> int:
@@ -125,6 +129,17 @@ def parameter_value(v):
     return pv
 
 
+def spin_until_complete(node, future, timeout):
+    """Spin ``node`` until ``future`` is done or ``timeout`` s have passed: with the executor
+    the node belongs to, else with rclpy's global one (which takes the node in and out, and
+    leaves ``node.executor`` set)."""
+    executor = node.executor
+    if executor is not None and node in executor.get_nodes():
+        executor.spin_until_future_complete(future, timeout_sec=timeout)
+    else:
+        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+
+
 def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomically=True):
     """Set parameters of node ``target`` through its parameter service.
 
@@ -141,7 +156,7 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
         req = srv_type.Request()
         req.parameters = [Parameter(name=k, value=parameter_value(v)) for k, v in values.items()]
         fut = client.call_async(req)
-        rclpy.spin_until_future_complete(node, fut, timeout_sec=timeout)
+        spin_until_complete(node, fut, timeout)
         if not fut.done():
             return False, f"{target}: parameter service timed out"
         res = fut.result()
@@ -184,7 +199,7 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
         if not client.wait_for_service(timeout_sec=timeout):
             return None, f"{target}: parameter service not available"
         fut = client.call_async(GetParameters.Request(names=names))
-        rclpy.spin_until_future_complete(node, fut, timeout_sec=timeout)
+        spin_until_complete(node, fut, timeout)
         if not fut.done():
             return None, f"{target}: parameter service timed out"
         got = list(fut.result().values)

@@ -3,6 +3,13 @@
 ``run_demo`` runs the whole story of ``reachset demo`` (see :mod:`reachset_ros.commands.demo`):
 every node is a separate process talking over DDS; this process only starts/stops them,
 calls their services and parameters, and listens to ``/safe_stop`` and ``/sim/fault_onset``.
+
+The story's phases (training recordings, settling, the monitored run and the fault's
+time in it) are timed on the simulation's clock (``/clock`` from sim_node, the driver and
+the recorders run with ``use_sim_time``), as a simulation is, so that the story is the
+same on a loaded machine where the simulation runs slower than real time: ``--duration
+25 --inject-fault-at 18`` is 18 s of simulated, monitored motion before the fault. Each
+phase's real-time factor (simulated / wall time) is reported.
 """
 from __future__ import annotations
 
@@ -11,6 +18,7 @@ from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from reachset_msgs.msg import SafeStop
 from reachset_msgs.srv import Synthesize
 from std_msgs.msg import Header
@@ -18,7 +26,7 @@ from std_srvs.srv import Trigger
 
 from .. import launch
 from ..robot import JOINT_NAMES
-from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
+from .common import SAFE_STOP_QOS, make_executor, set_remote_parameters, spin_until_complete, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
@@ -28,23 +36,61 @@ CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimat
 #: watchdog limit (125 ticks = 0.5 s) so that a stall is not taken for missing data
 LOCKSTEP_TIMEOUT = 0.3
 MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
+#: a phase of S simulated seconds fails when it takes more than WALL_LIMIT(S) s of wall time
+#: (a simulation at less than about a fifth of real time: a stalled or dead node)
+WALL_LIMIT = lambda seconds: 30.0 + 5.0 * seconds  # noqa: E731
 
 
 class DemoDriver(Node):
     def __init__(self):
-        super().__init__("demo_driver")
+        super().__init__("demo_driver", parameter_overrides=[Parameter("use_sim_time", value=True)])
         self.stops = []
         self.onsets = []
         self.create_subscription(SafeStop, "safe_stop", lambda m: self.stops.append(m), SAFE_STOP_QOS)
         self.create_subscription(Header, "sim/fault_onset", lambda m: self.onsets.append(m), SAFE_STOP_QOS)
+        # its own executor, the nodes' one: /clock wakes it every tick, and rclpy.spin_once
+        # would add the node to the global executor and remove it again at each wake-up
+        self.own_executor = make_executor()   # Node.executor holds only a weak reference
+        self.own_executor.add_node(self)
+
+    def spin_once(self, timeout_sec):
+        self.own_executor.spin_once(timeout_sec=timeout_sec)
 
     def spin_for(self, seconds, until=None):
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            rclpy.spin_once(self, timeout_sec=0.05)
+            self.spin_once(0.05)
             if until is not None and until():
                 return True
         return False
+
+    def sim_now(self):
+        """The simulation's time, ns (0 before the first ``/clock``)."""
+        return self.get_clock().now().nanoseconds
+
+    def spin_sim(self, seconds, until=None, since=None):
+        """Spin for ``seconds`` of simulated time (from ``since``, ns, default now), or until
+        ``until()``; returns ``(until_met, real_time_factor)``. Raises when the simulation
+        does not advance that far within ``WALL_LIMIT(seconds)`` of wall time."""
+        wall0 = time.monotonic()
+        wall_end = wall0 + WALL_LIMIT(seconds)
+        while self.sim_now() == 0:
+            if time.monotonic() > wall_end:
+                raise RuntimeError("no /clock from sim_node: the simulation is not running")
+            self.spin_once(0.05)
+        start = since if since is not None else self.sim_now()
+        sim0, end = self.sim_now(), start + int(seconds * 1e9)
+        met = False
+        while self.sim_now() < end:
+            if time.monotonic() > wall_end:
+                raise RuntimeError(f"the simulation advanced {(self.sim_now() - sim0) * 1e-9:.1f} s in "
+                                   f"{time.monotonic() - wall0:.0f} s of wall time: a node is stalled or dead")
+            self.spin_once(0.05)
+            if until is not None and until():
+                met = True
+                break
+        wall = time.monotonic() - wall0
+        return met, ((self.sim_now() - sim0) * 1e-9 / wall if wall > 0 else float("nan"))
 
     def call(self, srv_type, name, request, timeout=600.0):
         client = self.create_client(srv_type, name)
@@ -52,7 +98,7 @@ class DemoDriver(Node):
             if not client.wait_for_service(timeout_sec=30.0):
                 raise RuntimeError(f"service {name} not available")
             fut = client.call_async(request)
-            rclpy.spin_until_future_complete(self, fut, timeout_sec=timeout)
+            spin_until_complete(self, fut, timeout)
             if not fut.done():
                 raise RuntimeError(f"service {name} timed out after {timeout:.0f} s")
             return fut.result()
@@ -67,7 +113,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
                           "h1": [15.0], "h2": [30.0], "eps": [0.01]}
-    out = {"phases": []}
+    out = {"phases": [], "real_time_factor": {}}
     procs = []
     own = not rclpy.ok()
     if own:
@@ -91,21 +137,26 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
 
         def record_phase(name, seconds, topics, path):
             node = "recorder_node_" + name.replace(" ", "_")
-            rec = launch.start("recorder_node", {"output": str(path), "topics": topics}, workdir, node_name=node)
+            rec = launch.start("recorder_node", {"output": str(path), "topics": topics, "use_sim_time": True},
+                               workdir, node_name=node)
             # recording starts when the recorder has subscribed to every topic (a loaded machine
             # can take many seconds to start a process), not after a fixed pause
             if not driver.spin_for(60.0, until=lambda: all(
                     any(i.node_name == node for i in driver.get_subscriptions_info_by_topic(t)) for t in topics)):
                 raise RuntimeError(f"{node} did not subscribe to {topics} within 60 s")
             driver.spin_for(0.5)  # matching with the publishers
-            log(f"[demo] {name}: recording {seconds:.0f} s to {path}")
-            t0 = time.monotonic()
-            return rec, t0
+            log(f"[demo] {name}: recording {seconds:.0f} s of simulated time to {path}")
+            return rec, driver.sim_now()
+
+        def timed(name, seconds, **kw):
+            met, rtf = driver.spin_sim(seconds, **kw)
+            out["real_time_factor"][name] = round(rtf, 3)
+            return met
 
         # 1. initial gains, recorded for identification and synthesis
         bag1 = workdir / "train_initial_gains"
         rec, _ = record_phase("initial", train, CORE_TOPICS, bag1)
-        driver.spin_for(train)
+        timed("initial gains", train)
         launch.stop([rec])
         out["phases"].append({"name": "initial gains", "bag": str(bag1), "gains": initial})
         # 2. combined synthesis on that bag, applied live through the parameter services
@@ -123,7 +174,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         # 3. run with the new gains, re-identify the sets (paper Sec. III-D, iteration 2)
         bag2 = workdir / "train_new_gains"
         rec, _ = record_phase("new gains", train, CORE_TOPICS, bag2)
-        driver.spin_for(train)
+        timed("new gains", train)
         launch.stop([rec])
         log("[demo] synthesis node: second iteration, combined synthesis on both recordings")
         req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="combined", apply=True)
@@ -139,7 +190,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
                 "gains and model")
         # let the transient of the live gain change settle before monitoring starts: the
         # switch itself (estimates and commands jump) is not a motion the training covered
-        driver.spin_for(settle)
+        timed("settle", settle)
         # the monitor gets the model with the demo's safety margin (inflation of the sets)
         from .. import model as mdl
         from dataclasses import replace
@@ -156,9 +207,8 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             raise RuntimeError(f"monitor reset failed: {reset.message}")
         driver.stops.clear()
         rec, t0 = record_phase("monitored", duration, MONITOR_TOPICS, record)
-        out["monitored_start_wall"] = time.time()
         if fault_at is not None and fault_at < duration:
-            driver.spin_for(fault_at, until=lambda: bool([s for s in driver.stops if s.active]))
+            timed("monitored before the fault", fault_at, until=lambda: bool([s for s in driver.stops if s.active]))
             early = [s for s in driver.stops if s.active]
             if early:
                 out["early_stop"] = {"reason": early[0].reason, "stamp_ns": stamp_ns(early[0].header.stamp)}
@@ -168,9 +218,9 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             if not ok:
                 raise RuntimeError(f"fault injection refused: {why}")
             driver.spin_for(2.0, until=lambda: bool(driver.onsets))
-            driver.spin_for(max(0.0, duration - (time.monotonic() - t0)))
+            timed("monitored after the fault", duration, since=t0)
         else:
-            driver.spin_for(duration)
+            timed("monitored", duration)
         launch.stop([rec])
         active = [s for s in driver.stops if s.active]
         out["fault_injected_ns"] = stamp_ns(driver.onsets[0].stamp) if driver.onsets else None

@@ -3,7 +3,9 @@
 rosbag2 is not on PyPI, so this stands in for ``ros2 bag record``: it subscribes to each
 topic as serialized CDR (rclpy ``raw=True``), and writes the bytes unchanged with the
 message definitions embedded, so any rosbags or mcap reader decodes the bag without this
-package. Receive time is the bag's log time. The bag appears at ``output`` only when the
+package. The bag's log time is the receive time on the node's clock: the wall clock, or
+with ``use_sim_time: true`` the latest ``/clock`` (as ``ros2 bag record --use-sim-time``;
+messages that arrive before the first ``/clock`` are written with its time). The bag appears at ``output`` only when the
 recorder shuts down cleanly (SIGINT/SIGTERM); until then it is ``<output>.partial``.
 """
 from diagnostic_msgs.msg import DiagnosticArray
@@ -36,6 +38,7 @@ class RecorderNode(Node):
         self.writer = BagWriter(self.get_parameter("output").value)
         self.writer.__enter__()
         self.counts = {}
+        self.waiting_for_clock = []   # (topic, data, typename) received before the first /clock
         for topic in self.get_parameter("topics").value:
             if topic not in TOPICS:
                 self.get_logger().warning(f"unknown topic {topic}: not recorded")
@@ -46,11 +49,25 @@ class RecorderNode(Node):
 
     def _cb(self, topic, typename):
         def cb(data):
-            self.writer.write_raw(topic, bytes(data), self.get_clock().now().nanoseconds, typename)
             self.counts[topic] = self.counts.get(topic, 0) + 1
+            t = self.get_clock().now().nanoseconds
+            if t == 0:          # use_sim_time and no /clock yet
+                self.waiting_for_clock.append((topic, bytes(data), typename))
+                return
+            self._write_waiting(t)
+            self.writer.write_raw(topic, bytes(data), t, typename)
         return cb
 
+    def _write_waiting(self, t):
+        for topic, data, typename in self.waiting_for_clock:
+            self.writer.write_raw(topic, data, t, typename)
+        self.waiting_for_clock.clear()
+
     def close(self):
+        if self.waiting_for_clock:
+            self.get_logger().warning(f"no /clock received: {len(self.waiting_for_clock)} messages written "
+                                      "with log time 0")
+            self._write_waiting(0)
         self.writer.__exit__(None, None, None)
 
 

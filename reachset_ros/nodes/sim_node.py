@@ -9,20 +9,24 @@ machine does not add delays the model does not have; the stamps stay on the simu
 clock. With 0 it runs free like a real drive and holds the last command. Faults are
 injected through the ``fault`` parameters (``none`` clears them all); the stamp of the
 first measurement a fault can change is published, latched, on ``/sim/fault_onset`` (std_msgs/Header, frame_id = the
-fault's description).
+fault's description). With ``publish_clock`` (the default) it also publishes ``/clock``
+(rosgraph_msgs/Clock, the stamp of each measurement), as Gazebo does, so that nodes run
+with ``use_sim_time: true`` (the demo's recorder and conductor) follow the simulation's
+time whatever the machine's load.
 """
 import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
 from .. import simulator as sim
 from ..errors import ReachsetError
 from ..reference import ReferenceConfig
-from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
+from .common import CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up
 CATCH_UP = 1.0
@@ -55,6 +59,8 @@ class SimNode(Node):
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
                                     "before stepping with the previous one (0: free-running)", 0.0, 1.0))
+        self.declare_parameter("publish_clock", True,
+                               desc("publish /clock (the simulation's time) every tick", read_only=True))
         self.declare_parameter("fault", "none",
                                desc("inject now: " + " | ".join(FAULTS[1:]) + "; none: clear all faults"))
         self.declare_parameter("fault_joint", "arm_1_joint", desc("joint of the fault"))
@@ -75,6 +81,8 @@ class SimNode(Node):
         self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0}
         self.fresh = False
         self.pub = self.create_publisher(JointState, "joint_states", TICK_QOS)
+        self.clock_pub = (self.create_publisher(Clock, "/clock", CLOCK_QOS)
+                          if self.get_parameter("publish_clock").value else None)
         self.onset_pub = self.create_publisher(Header, "sim/fault_onset", SAFE_STOP_QOS)
         self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
@@ -148,6 +156,10 @@ class SimNode(Node):
                                f"bad effort messages {c['bad_effort']}")
 
     def publish(self, m):
+        if self.clock_pub is not None:
+            c = Clock()
+            to_stamp(c.clock, m.stamp_ns)
+            self.clock_pub.publish(c)
         js = JointState()
         to_stamp(js.header.stamp, m.stamp_ns)
         js.name = self.names
