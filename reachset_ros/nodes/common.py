@@ -91,7 +91,7 @@ def make_executor():
     """The executor every node spins: rclpy's ``EventsExecutor`` (C++, callbacks in arrival order).
 
     On the 2-core machine the demo's closed loop (sim, reference, observer, controller,
-    monitor) keeps real time (250 Hz) with it and runs at 44 % of real time with the
+    monitor) ran at 83-101 % of real time with it and at 42-44 % with the
     ``SingleThreadedExecutor``, which rebuilds its wait set in Python for every callback
     (about 70 % of each node's CPU time): ``benchmarks/bench_closed_loop.py``,
     docs/performance.md. ``REACHSET_EXECUTOR=single`` selects the ``SingleThreadedExecutor``, as
