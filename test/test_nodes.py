@@ -516,3 +516,46 @@ def test_controller_refuses_to_start_with_a_configuration_it_would_refuse_later(
     lines = [ln for ln in ctl.log.read_text().splitlines() if ln.strip()]
     assert len(lines) == 1, lines
     assert lines[0].startswith("ControllerNode: error: ") and words in lines[0], lines[0]
+
+
+def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
+    """sim_node publishes /clock with each measurement; a recorder with use_sim_time writes
+    that clock as the log time (each /joint_states at its own stamp, give or take a tick),
+    and a message that arrived before the first /clock (a latched /safe_stop) with the
+    first clock's time, never 0."""
+    from rosbags.highlevel import AnyReader
+    from reachset_ros.bags import typestore
+    stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+    stop_pub.publish(SafeStop(active=False, kind="reset", reason="latched before the simulation"))
+    bag = tmp_path / "simtime"
+    rec = launch.start("recorder_node", {"output": str(bag), "topics": ["/joint_states", "/safe_stop"],
+                                         "use_sim_time": True}, tmp_path)
+    sim = None
+    try:
+        assert spin_until(ros, lambda: stop_pub.get_subscription_count() > 0, 60), rec.log.read_text()[-800:]
+        time.sleep(0.5)                              # the latched message is delivered, no /clock yet
+        sim = launch.start("sim_node", {"realistic": False, "lockstep_timeout": 0.0}, tmp_path)
+        got = []
+        sub = ros.create_subscription(JointState, "joint_states", got.append, TICK_QOS)
+        assert spin_until(ros, lambda: len(got) > 750, 60), sim.log.read_text()[-800:]
+        ros.destroy_subscription(sub)
+        launch.stop([rec])
+        assert rec.proc.returncode == 0, rec.log.read_text()[-800:]
+    finally:
+        launch.stop([rec] + ([sim] if sim else []))
+        ros.destroy_publisher(stop_pub)
+    ts = typestore()
+    js, stops = [], []
+    with AnyReader([bag], default_typestore=ts) as reader:
+        for c, t, raw in reader.messages():
+            m = ts.deserialize_cdr(raw, c.msgtype)
+            (js if c.topic == "/joint_states" else stops).append((_ns(m), t))
+    assert len(stops) == 1 and len(js) > 300
+    # receive time on the simulation's clock: never before the stamp (give or take the tick
+    # whose /clock is still on its way), later while the recorder works off a backlog
+    lag = np.array([t - s for s, t in js])
+    print("log time - stamp, ms: min, median, max", lag.min() / 1e6, np.median(lag) / 1e6, lag.max() / 1e6)
+    assert np.all((lag >= -8_000_000) & (lag <= 1_000_000_000)), (lag.min(), lag.max())
+    assert abs(np.median(lag)) <= 4_000_000, np.median(lag)
+    first_js_stamp = min(s for s, _ in js)
+    assert stops[0][1] > 0 and abs(stops[0][1] - first_js_stamp) <= 8_000_000, (stops[0][1], first_js_stamp)

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from reachset_msgs.msg import SafeStop
@@ -26,7 +27,7 @@ from std_srvs.srv import Trigger
 
 from .. import launch
 from ..robot import JOINT_NAMES
-from .common import SAFE_STOP_QOS, make_executor, set_remote_parameters, spin_until_complete, stamp_ns
+from .common import SAFE_STOP_QOS, set_remote_parameters, spin_until_complete, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
@@ -36,9 +37,12 @@ CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimat
 #: watchdog limit (125 ticks = 0.5 s) so that a stall is not taken for missing data
 LOCKSTEP_TIMEOUT = 0.3
 MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
-#: a phase of S simulated seconds fails when it takes more than WALL_LIMIT(S) s of wall time
-#: (a simulation at less than about a fifth of real time: a stalled or dead node)
-WALL_LIMIT = lambda seconds: 30.0 + 5.0 * seconds  # noqa: E731
+
+
+def wall_limit(seconds):
+    """Wall time (s) after which a phase of ``seconds`` simulated seconds fails: the
+    simulation then runs at less than about a fifth of real time (a stalled or dead node)."""
+    return 30.0 + 5.0 * seconds
 
 
 class DemoDriver(Node):
@@ -48,9 +52,11 @@ class DemoDriver(Node):
         self.onsets = []
         self.create_subscription(SafeStop, "safe_stop", lambda m: self.stops.append(m), SAFE_STOP_QOS)
         self.create_subscription(Header, "sim/fault_onset", lambda m: self.onsets.append(m), SAFE_STOP_QOS)
-        # its own executor, the nodes' one: /clock wakes it every tick, and rclpy.spin_once
-        # would add the node to the global executor and remove it again at each wake-up
-        self.own_executor = make_executor()   # Node.executor holds only a weak reference
+        # its own executor: /clock wakes it every tick, and rclpy.spin_once would add the node
+        # to the global executor and remove it again at each wake-up. Not the nodes'
+        # EventsExecutor: with it, this process once hung in rclpy's shutdown (in
+        # Context._logging_fini) after the demo had finished.
+        self.own_executor = SingleThreadedExecutor()   # Node.executor holds only a weak reference
         self.own_executor.add_node(self)
 
     def spin_once(self, timeout_sec):
@@ -71,9 +77,9 @@ class DemoDriver(Node):
     def spin_sim(self, seconds, until=None, since=None):
         """Spin for ``seconds`` of simulated time (from ``since``, ns, default now), or until
         ``until()``; returns ``(until_met, real_time_factor)``. Raises when the simulation
-        does not advance that far within ``WALL_LIMIT(seconds)`` of wall time."""
+        does not advance that far within ``wall_limit(seconds)`` of wall time."""
         wall0 = time.monotonic()
-        wall_end = wall0 + WALL_LIMIT(seconds)
+        wall_end = wall0 + wall_limit(seconds)
         while self.sim_now() == 0:
             if time.monotonic() > wall_end:
                 raise RuntimeError("no /clock from sim_node: the simulation is not running")
@@ -232,6 +238,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         return out
     finally:
         launch.stop(procs)
+        driver.own_executor.shutdown(timeout_sec=1.0)
         driver.destroy_node()
         if own:
             rclpy.try_shutdown()

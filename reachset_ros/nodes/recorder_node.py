@@ -5,8 +5,9 @@ topic as serialized CDR (rclpy ``raw=True``), and writes the bytes unchanged wit
 message definitions embedded, so any rosbags or mcap reader decodes the bag without this
 package. The bag's log time is the receive time on the node's clock: the wall clock, or
 with ``use_sim_time: true`` the latest ``/clock`` (as ``ros2 bag record --use-sim-time``;
-messages that arrive before the first ``/clock`` are written with its time). The bag appears at ``output`` only when the
-recorder shuts down cleanly (SIGINT/SIGTERM); until then it is ``<output>.partial``.
+messages that arrive before the first ``/clock`` are written with its time). The bag
+appears at ``output`` only when the recorder shuts down cleanly (SIGINT/SIGTERM); until
+then it is ``<output>.partial``.
 """
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
