@@ -88,6 +88,11 @@ def story_failures(s, fault_expected):
     return out
 
 
+def rate_hz(t_ns):
+    """Messages per second over sorted times ``t_ns`` (ns): (n - 1) / span; 0 for fewer than two."""
+    return (len(t_ns) - 1) / ((t_ns[-1] - t_ns[0]) * 1e-9) if len(t_ns) > 1 else 0.0
+
+
 def summarize(res, record, workdir):
     """Read the monitored bag back and put the story into numbers."""
     from ..bags import typestore
@@ -112,10 +117,9 @@ def summarize(res, record, workdir):
     st = np.array([s[0] for s in status], dtype=np.int64)
     until = stop_ns if stop_ns is not None else (st[-1] if len(st) else 0)
     before = st[st <= until] if len(st) else st
-    rate = (len(before) - 1) / ((before[-1] - before[0]) * 1e-9) if len(before) > 1 else 0.0
+    rate = rate_hz(before)
     # the same on the bag's log time (the recorder's clock: the simulation's /clock)
-    log_t = np.array(sorted(s[2] for s in status if s[0] <= until), dtype=np.int64)
-    log_rate = (len(log_t) - 1) / ((log_t[-1] - log_t[0]) * 1e-9) if len(log_t) > 1 else 0.0
+    log_rate = rate_hz(np.array(sorted(s[2] for s in status if s[0] <= until), dtype=np.int64))
     out = {
         "fault_injected_ns": fault_ns, "safe_stop_ns": stop_ns,
         "detection_latency_ms": (stop_ns - fault_ns) / 1e6 if (fault_ns and stop_ns) else None,
