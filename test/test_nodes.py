@@ -520,9 +520,10 @@ def test_controller_refuses_to_start_with_a_configuration_it_would_refuse_later(
 
 def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     """sim_node publishes /clock with each measurement; a recorder with use_sim_time writes
-    that clock as the log time (each /joint_states at its own stamp, give or take a tick),
-    and a message that arrived before the first /clock (a latched /safe_stop) with the
-    first clock's time, never 0."""
+    that clock as the log time, and a message that arrived before the first /clock (a
+    latched /safe_stop) with the first clock's time, never 0. The simulation runs at about
+    a tenth of real time here (each tick waits 40 ms for a command nobody sends), so
+    wall-clock log times would be ten times as far apart as the stamps."""
     from rosbags.highlevel import AnyReader
     from reachset_ros.bags import typestore
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
@@ -534,11 +535,14 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     try:
         assert spin_until(ros, lambda: stop_pub.get_subscription_count() > 0, 60), rec.log.read_text()[-800:]
         time.sleep(0.5)                              # the latched message is delivered, no /clock yet
-        sim = launch.start("sim_node", {"realistic": False, "lockstep_timeout": 0.0}, tmp_path)
+        t_launch = time.time_ns()                    # the simulation's stamps start later than this
+        sim = launch.start("sim_node", {"realistic": False, "lockstep_timeout": 0.04}, tmp_path)
         got = []
         sub = ros.create_subscription(JointState, "joint_states", got.append, TICK_QOS)
-        assert spin_until(ros, lambda: len(got) > 750, 60), sim.log.read_text()[-800:]
+        assert spin_until(ros, lambda: len(got) > 60, 60), sim.log.read_text()[-800:]
         ros.destroy_subscription(sub)
+        launch.stop([sim])
+        time.sleep(2.0)                              # the recorder works off what it has received
         launch.stop([rec])
         assert rec.proc.returncode == 0, rec.log.read_text()[-800:]
     finally:
@@ -550,12 +554,16 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
         for c, t, raw in reader.messages():
             m = ts.deserialize_cdr(raw, c.msgtype)
             (js if c.topic == "/joint_states" else stops).append((_ns(m), t))
-    assert len(stops) == 1 and len(js) > 300
-    # receive time on the simulation's clock: never before the stamp (give or take the tick
-    # whose /clock is still on its way), later while the recorder works off a backlog
-    lag = np.array([t - s for s, t in js])
+    js.sort()
+    # (the recorder may discover the simulator a little later than this test does)
+    assert len(stops) == 1 and len(js) >= 30, (len(stops), len(js))
+    stamp = np.array([s for s, _ in js])
+    log = np.array([t for _, t in js])
+    lag = log - stamp
     print("log time - stamp, ms: min, median, max", lag.min() / 1e6, np.median(lag) / 1e6, lag.max() / 1e6)
-    assert np.all((lag >= -8_000_000) & (lag <= 1_000_000_000)), (lag.min(), lag.max())
-    assert abs(np.median(lag)) <= 4_000_000, np.median(lag)
-    first_js_stamp = min(s for s, _ in js)
-    assert stops[0][1] > 0 and abs(stops[0][1] - first_js_stamp) <= 8_000_000, (stops[0][1], first_js_stamp)
+    # on the simulation's clock: never before the stamp but for the tick whose /clock is on
+    # its way, and a recorder's delay of a few hundred ms is a few ticks of this clock
+    assert np.all((lag >= -4_000_000) & (lag <= 100_000_000)), (lag.min(), lag.max())
+    assert (log[-1] - log[0]) <= 1.5 * (stamp[-1] - stamp[0]) + 100_000_000
+    # the latched stop, received >= 0.5 s before the launch, is logged at the first /clock
+    assert t_launch <= stops[0][1] <= stamp[0] + 8_000_000, (t_launch, stops[0][1], stamp[0])

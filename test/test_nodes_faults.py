@@ -469,6 +469,25 @@ class TestMonitorNode:
         assert len(bus.active_stops()) == 1   # first cause wins; later ones do not re-publish
         self.alive_and_checking(bus, proc)
 
+    def test_violation_names_its_test_case_on_the_models_tick(self, bus, mon):
+        """A violation's stop names joint, step k and the stamp where its test case began:
+        k ticks of the model's dt (4 ms) before, whatever the node's ``dt`` parameter (the
+        watchdog's tick) says."""
+        ok, why = bus.set_params("monitor_node", {"dt": 0.008})
+        assert ok, why
+        try:
+            Y, U = stream(80, seed=4)
+            Y[60, 0] += 0.01                          # a jump no set of this model allows
+            ts = stamps(80)
+            bus.send_ticks(ts, Y, U)
+            assert bus.wait(lambda: bus.active_stops())
+            stop = bus.active_stops()[0]
+            assert (stop.kind, stop.joint, stamp_ns(stop.header.stamp)) == ("violation", JOINTS[0], ts[60]), stop
+            assert stop.step >= 1 and stop.test_case_start_ns == ts[60] - stop.step * DT_NS, stop
+        finally:
+            ok, why = bus.set_params("monitor_node", {"dt": 0.004})
+            assert ok, why
+
     def test_extra_names_are_ignored_and_counted(self, bus, mon):
         Y, U = stream(50, seed=2)
         ts = stamps(50)

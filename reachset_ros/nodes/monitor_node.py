@@ -318,7 +318,7 @@ class MonitorNode(Node):
         m.step = int(step)
         m.deviation, m.bound = float(deviation), float(bound)
         if start_tick >= 0 and self.core is not None:
-            m.test_case_start_ns = int(stamp - step * round(self.get_parameter("dt").value * 1e9))
+            m.test_case_start_ns = int(stamp - step * self.core.dt_ns)   # step k of the model's ticks
         m.window_bag = self.write_window(stamp, kind)
         self.stop_msg = m
         self.stop_pub.publish(m)
