@@ -29,10 +29,6 @@ import time
 
 import numpy as np
 
-INITIAL = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0], "h1": [15.0],
-           "h2": [30.0], "eps": [0.01]}
-
-
 def cpu_seconds(pid):
     with open(f"/proc/{pid}/stat") as f:
         fields = f.read().rsplit(")", 1)[1].split()
@@ -47,14 +43,15 @@ def run(executor, seconds, workdir, warmup=6.0):
 
     from reachset_ros import launch
     from reachset_ros.nodes.common import TICK_QOS
+    from reachset_ros.nodes.demo_driver import INITIAL_GAINS
     from reachset_ros.robot import JOINT_NAMES
 
     joints = list(JOINT_NAMES)
     env = dict(os.environ, REACHSET_EXECUTOR=executor)
     procs = [launch.start("sim_node", {"seed": 1, "realistic": True}, workdir, env=env),
              launch.start("reference_node", {"seed": 1}, workdir, env=env),
-             launch.start("observer_node", {"joints": joints, **INITIAL}, workdir, env=env),
-             launch.start("controller_node", {"joints": joints, **INITIAL}, workdir, env=env),
+             launch.start("observer_node", {"joints": joints, **INITIAL_GAINS}, workdir, env=env),
+             launch.start("controller_node", {"joints": joints, **INITIAL_GAINS}, workdir, env=env),
              launch.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir, env=env)]
     rclpy.init()
     node = Node("bench_closed_loop")

@@ -37,6 +37,9 @@ CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimat
 #: watchdog limit (125 ticks = 0.5 s) so that a stall is not taken for missing data
 LOCKSTEP_TIMEOUT = 0.3
 MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
+#: the gains the demo starts with (observer and controller parameters, one value for all joints)
+INITIAL_GAINS = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
+                 "h1": [15.0], "h2": [30.0], "eps": [0.01]}
 
 
 def wall_limit(seconds):
@@ -117,8 +120,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
              settle=3.0):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
     workdir.mkdir(parents=True, exist_ok=True)
-    initial = initial or {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
-                          "h1": [15.0], "h2": [30.0], "eps": [0.01]}
+    initial = initial or INITIAL_GAINS
     out = {"phases": [], "real_time_factor": {}}
     procs = []
     own = not rclpy.ok()
