@@ -567,3 +567,37 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     assert (log[-1] - log[0]) <= 1.5 * (stamp[-1] - stamp[0]) + 100_000_000
     # the latched stop, received >= 0.5 s before the launch, is logged at the first /clock
     assert t_launch <= stops[0][1] <= stamp[0] + 8_000_000, (t_launch, stops[0][1], stamp[0])
+
+
+def test_parameter_request_left_unanswered_is_sent_again(ros):
+    """get/set_remote_parameters send an unanswered request again after RESEND_AFTER s (a
+    freshly started node's answer can be lost while DDS still matches the caller's reply
+    reader); the first answer that comes is used."""
+    import threading
+    from rcl_interfaces.msg import ParameterValue
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.executors import SingleThreadedExecutor
+    from reachset_ros.nodes.common import RESEND_AFTER, get_remote_parameters
+    requests = []
+
+    def answer(request, response):
+        requests.append(time.monotonic())
+        if len(requests) == 1:
+            time.sleep(RESEND_AFTER + 1.0)       # the first answer comes too late
+        response.values = [ParameterValue(type=3, double_value=7.5)]   # PARAMETER_DOUBLE
+        return response
+
+    server = Node("slow_parameter_server", start_parameter_services=False)
+    server.create_service(GetParameters, "/slow_parameter_server/get_parameters", answer)
+    ex = SingleThreadedExecutor()
+    ex.add_node(server)
+    threading.Thread(target=ex.spin, daemon=True).start()
+    try:
+        t0 = time.monotonic()
+        values, why = get_remote_parameters(ros, "slow_parameter_server", ["x"], timeout=20.0)
+        assert values == {"x": 7.5}, why
+        assert len(requests) == 2 and requests[1] - requests[0] >= RESEND_AFTER, requests
+        assert time.monotonic() - t0 < 20.0
+    finally:
+        ex.shutdown()
+        server.destroy_node()

@@ -1,5 +1,6 @@
 """Small helpers shared by the nodes: stamps, QoS profiles, parameter descriptors, main()."""
 import sys
+import time
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -140,6 +141,32 @@ def spin_until_complete(node, future, timeout):
         rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
 
 
+#: a parameter request still unanswered after this many seconds is sent again (see
+#: :func:`call_parameter_service`)
+RESEND_AFTER = 2.0
+
+
+def call_parameter_service(node, client, request, timeout):
+    """Call a parameter service (idempotent: get, set), sending the request again every
+    ``RESEND_AFTER`` s while no answer has come, until ``timeout`` s have passed.
+
+    A node that has just started can answer before Fast DDS has matched the caller's reply
+    reader; the answer is then dropped ("failed to send response (timeout): client will not
+    receive response") and the caller would wait out its whole timeout (seen in a CI run).
+    Setting the same parameters twice gives the same configuration. Returns the response,
+    or None when none came in time.
+    """
+    deadline = time.monotonic() + timeout
+    futures = []
+    while time.monotonic() < deadline:
+        futures.append(client.call_async(request))
+        spin_until_complete(node, futures[-1], min(RESEND_AFTER, deadline - time.monotonic()))
+        done = [f for f in futures if f.done()]
+        if done:
+            return done[0].result()
+    return None
+
+
 def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomically=True):
     """Set parameters of node ``target`` through its parameter service.
 
@@ -155,11 +182,9 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
             return False, f"{target}: parameter service not available"
         req = srv_type.Request()
         req.parameters = [Parameter(name=k, value=parameter_value(v)) for k, v in values.items()]
-        fut = client.call_async(req)
-        spin_until_complete(node, fut, timeout)
-        if not fut.done():
+        res = call_parameter_service(node, client, req, timeout)
+        if res is None:
             return False, f"{target}: parameter service timed out"
-        res = fut.result()
         results = [res.result] if atomically else list(res.results)
         bad = [r.reason for r in results if not r.successful]
         return (not bad), "; ".join(bad)
@@ -198,11 +223,10 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
     try:
         if not client.wait_for_service(timeout_sec=timeout):
             return None, f"{target}: parameter service not available"
-        fut = client.call_async(GetParameters.Request(names=names))
-        spin_until_complete(node, fut, timeout)
-        if not fut.done():
+        res = call_parameter_service(node, client, GetParameters.Request(names=names), timeout)
+        if res is None:
             return None, f"{target}: parameter service timed out"
-        got = list(fut.result().values)
+        got = list(res.values)
         if len(got) != len(names):
             return None, f"{target}: get_parameters answered {len(got)} values for {len(names)} names"
         values = {n: parameter_value_to_python(v) for n, v in zip(names, got)}
