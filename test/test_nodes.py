@@ -307,18 +307,28 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     braking began the arm is at rest, |qd| <= 0.03 rad/s per joint, and holds: it stays
     within 0.1 rad of q_hold and drifts by at most 30 mrad per joint over the next 2 s.
     (The wrist joint 5 creeps towards its equilibrium q_hold + d/64: the friction the
-    controller's model underestimates makes the braking PD overdamped there.)"""
+    controller's model underestimates makes the braking PD overdamped there.)
+
+    On a loaded machine this listener falls behind (seconds were seen with two CPU burners)
+    and can lose ticks (the publishers keep 50), so braking is found in the data, not by
+    the time this test published the stop: q_hold is read off the last recorded inputs,
+    where a joint that is not saturated gives q_hold = q^ + (u + 16 q^d) / 64."""
     from std_msgs.msg import Float64MultiArray
     from reachset_ros.robot import TABLE1_TAU_MAX
     u_max = np.array([26.0, 26.0, 26.0, 26.0, 100.0, 100.0])
     rec = Recorder("braking_listener", {"joint_states": JointState, "plant_input": PlantInput,
                                         "observer/estimate": JointEstimate, "effort_commands": Float64MultiArray})
     common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    # as the monitor does: the stop state latched before the controller starts, which holds
+    # the arm until it has it; so once the arm moves, the controller's reader has matched
+    # this writer (a writer that has matched the reader is not enough: under load the
+    # reader's side of discovery came seconds later)
+    stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+    stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
     procs = [launch.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
              launch.start("reference_node", {"seed": 2}, tmp_path),
              launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", common, tmp_path)]
-    stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+             launch.start("controller_node", dict(common, wait_for_monitor=True), tmp_path)]
     try:
         js = rec.msgs["joint_states"]
 
@@ -330,26 +340,45 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
         to_stamp(stop.header.stamp, t_pub)
         wall_pub = time.monotonic()
         stop_pub.publish(stop)
-        assert rec.wait(lambda: _ns(js[-1][1]) >= t_pub + 4_500_000_000, 90)
-        # each /plant_input with the estimate it was computed from (same stamp)
-        est = {_ns(m): m for _, m in rec.msgs["observer/estimate"]}
-        ins = sorted((_ns(m), m) for _, m in rec.msgs["plant_input"] if _ns(m) in est)
-        q_hold = onset = None
-        law_err = []
-        for t, m in ins:
-            q, qd = np.array(est[t].position), np.array(est[t].velocity)
-            u = np.array(m.acceleration)
-            if q_hold is None:
-                hold = q + qd * np.abs(qd) / u_max
-                if np.allclose(u, np.clip(64 * (hold - q) - 16 * qd, -u_max, u_max), rtol=0, atol=1e-9):
-                    q_hold, onset = hold, t
-            if q_hold is not None:
-                law_err.append(np.abs(u - np.clip(64 * (q_hold - q) - 16 * qd, -u_max, u_max)).max())
-                assert np.all(np.abs(u) <= u_max)
-        assert onset is not None, "no braking tick"
-        # (an estimate stamped just before the stop may be the first one braked with)
-        assert abs(onset - t_pub) < 1_000_000_000
-        assert len(law_err) > 500 and max(law_err) < 1e-9, max(law_err)
+
+        def braking():
+            """(each /plant_input with the estimate it was computed from, by stamp; q_hold;
+            the index of the first tick from which on every input is the law with q_hold)"""
+            est = {_ns(m): m for _, m in list(rec.msgs["observer/estimate"])}
+            ins = sorted((_ns(m), np.array(est[_ns(m)].position), np.array(est[_ns(m)].velocity),
+                          np.array(m.acceleration)) for _, m in list(rec.msgs["plant_input"]) if _ns(m) in est)
+            if not ins:
+                return ins, None, 0
+            held = [np.where(np.abs(u) < u_max - 1e-6, q + (u + 16 * qd) / 64, np.nan)
+                    for t, q, qd, u in ins if t >= ins[-1][0] - 500_000_000]
+            q_hold = np.nanmedian(held, axis=0)
+            err = np.array([np.abs(u - np.clip(64 * (q_hold - q) - 16 * qd, -u_max, u_max)).max()
+                            for t, q, qd, u in ins])
+            first = int(np.flatnonzero(~(err < 1e-9))[-1]) + 1 if np.any(~(err < 1e-9)) else 0
+            return ins, q_hold, first
+
+        # until 3.6 s of braking are recorded (this listener can be seconds behind the loop)
+        deadline = time.monotonic() + 120
+        while True:
+            ins, q_hold, first = braking()
+            if 0 < first < len(ins) and min(ins[-1][0], _ns(js[-1][1])) >= ins[first][0] + 3_600_000_000:
+                break
+            assert time.monotonic() < deadline, ("no braking tick, or braking before the stop", first, len(ins))
+            time.sleep(1.0)
+        assert np.all(np.isfinite(q_hold)), q_hold
+        onset = ins[first][0]
+        print(f"braking from stamp {(onset - t_pub) / 1e6:+.0f} ms after the stop's, "
+              f"{time.monotonic() - wall_pub:.1f} s after it was published")
+        assert len(ins) - first > 500 and np.all([np.all(np.abs(u) <= u_max) for *_, u in ins[first:]])
+        # (the controller may brake an estimate stamped just before the stop's stamp: it may
+        # have been behind)
+        assert onset >= t_pub - 1_000_000_000, (onset - t_pub) / 1e6
+        # q_hold is the stopping point at the first braked estimate: one after the last
+        # tracked one (a late estimate whose reference came later can be braked after it)
+        hold_at = [np.abs(q_hold - (q + qd * np.abs(qd) / u_max)).max()
+                   for t, q, qd, _ in ins if ins[first - 1][0] < t <= onset + 40_000_000]
+        assert min(hold_at) < 1e-9, hold_at
+        assert "safe stop active: braking (manual: test: braking law" in procs[3].log.read_text()
         efforts = np.array([m.data for w, m in rec.msgs["effort_commands"] if w > wall_pub + 0.5])
         assert len(efforts) > 100 and np.all(np.abs(efforts) <= TABLE1_TAU_MAX), np.abs(efforts).max(axis=0)
         after = [(t - onset, np.array(m.position), np.array(m.velocity))

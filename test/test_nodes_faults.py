@@ -906,6 +906,7 @@ class TestWaitForMonitor:
             track = tracking_law(10.0, 1.0, qd=qd)
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15)
             assert ctl.alive()
+            assert "safe stop inactive: tracking (reset: monitor started" in ctl.log.read_text()
         finally:
             launch.stop([ctl])
             if pub is not None:

@@ -196,8 +196,15 @@ class ControllerNode(Node):
             self.on_estimate(est, late=True)
 
     def on_safe_stop(self, msg):
+        active = bool(msg.active)
+        if active != self.stop_active or not self.stop_known:
+            what = f"({msg.kind}: {msg.reason}; stamp {stamp_ns(msg.header.stamp)})"
+            if active:
+                self.get_logger().warning(f"safe stop active: braking {what}")
+            else:
+                self.get_logger().info(f"safe stop inactive: tracking {what}")
         self.stop_known = True
-        self.stop_active = bool(msg.active)
+        self.stop_active = active
         if not self.stop_active:
             self.q_hold = None
 

@@ -147,6 +147,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             node = "recorder_node_" + name.replace(" ", "_")
             rec = launch.start("recorder_node", {"output": str(path), "topics": topics, "use_sim_time": True},
                                workdir, node_name=node)
+            procs.append(rec)    # stopped with the others if a phase fails
             # recording starts when the recorder has subscribed to every topic (a loaded machine
             # can take many seconds to start a process), not after a fixed pause
             if not driver.spin_for(60.0, until=lambda: all(
