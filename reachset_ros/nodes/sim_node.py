@@ -9,10 +9,10 @@ machine does not add delays the model does not have; the stamps stay on the simu
 clock. With 0 it runs free like a real drive and holds the last command. Faults are
 injected through the ``fault`` parameters (``none`` clears them all); the stamp of the
 first measurement a fault can change is published, latched, on ``/sim/fault_onset``
-(std_msgs/Header, frame_id = the fault's description). With ``publish_clock`` (the default) it also publishes ``/clock``
-(rosgraph_msgs/Clock, the stamp of each measurement), as Gazebo does, so that nodes run
-with ``use_sim_time: true`` (the demo's recorder and conductor) follow the simulation's
-time whatever the machine's load.
+(std_msgs/Header, frame_id = the fault's description). With ``publish_clock`` (the
+default) it also publishes ``/clock`` (rosgraph_msgs/Clock, the stamp of each
+measurement), as Gazebo does, so that nodes run with ``use_sim_time: true`` (the demo's
+recorder and conductor) follow the simulation's time whatever the machine's load.
 """
 import time
 
