@@ -35,7 +35,7 @@ $(VENV)/.msgs: $(VENV)/.deps $(MSG_SRCS)
 	@rm -f build-msgs.log
 	@touch $@
 
-$(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/_tick.c
+$(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/conformance/_tick.c
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
 	@touch $@
 

@@ -15,9 +15,9 @@ NODES = {
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
     "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
 }
-# The online monitor's tick (reachset_ros/monitor.py loads it with ctypes; numpy is the
+# The online monitor's tick (reachset_ros/conformance/compiled.py loads it with ctypes; numpy is the
 # fallback). No fused multiply-add: its results must equal numpy's bit for bit.
-TICK_KERNEL = Extension(f"{PACKAGE}._tick", [f"{PACKAGE}/_tick.c"],
+TICK_KERNEL = Extension(f"{PACKAGE}.conformance._tick", [f"{PACKAGE}/conformance/_tick.c"],
                         extra_compile_args=["-std=c99", "-O3", "-ffp-contract=off", "-fno-fast-math"])
 
 SCRIPTS = ["reachset = reachset_ros.cli:main"] + [f"{k} = {v}" for k, v in NODES.items()]

@@ -36,8 +36,8 @@ import simbag  # noqa: E402
 
 from reachset_ros import bags  # noqa: E402
 from reachset_ros import conformance as cf  # noqa: E402
-from reachset_ros.estimators import Estimator  # noqa: E402
-from reachset_ros.plant import lwa4p_joint_plant  # noqa: E402
+from reachset_ros.conformance.estimators import Estimator  # noqa: E402
+from reachset_ros.systems.plant import lwa4p_joint_plant  # noqa: E402
 
 TICKS = 497_883          # 497,880 test cases per joint with the 3-tick 'fd' estimator history
 HORIZON = 125
@@ -104,7 +104,7 @@ def naive_check(plant, est, y, u, starts, horizon, alpha_w, alpha_v, c_w, c_v):
     y[m+k] must lie in C R_x[k] + D u[m+k] (+) V, checked with zonotope containment.
     Returns the number of (test case, k) checks outside.
     """
-    from reachset_ros.zonotope import Zonotope
+    from reachset_ros.sets.zonotope import Zonotope
     W = plant.W(alpha_w, c_w)
     V = plant.V(alpha_v, c_v)
     A, B, C, D = (np.asarray(M) for M in (plant.A, plant.B, plant.C, plant.D))

@@ -10,10 +10,10 @@ import time
 import numpy as np
 
 from reachset_ros import conformance as cf
-from reachset_ros.estimators import Estimator
-from reachset_ros.model import ConformanceModel, JointSets
-from reachset_ros.monitor import Monitor, MonitorModel
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.conformance.model import ConformanceModel, JointSets
+from reachset_ros.conformance.monitor import Monitor, MonitorModel
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
 def main():

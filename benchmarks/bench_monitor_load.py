@@ -52,7 +52,7 @@ HORIZON = 125
 
 def stream(n, seed=0):
     """(Y, U), shape (n, 6): the per-joint plant in closed loop, bounded disturbances."""
-    from reachset_ros.plant import lwa4p_joint_plant
+    from reachset_ros.systems.plant import lwa4p_joint_plant
     p = lwa4p_joint_plant()
     rng = np.random.default_rng(seed)
     J = len(JOINTS)
@@ -67,9 +67,9 @@ def stream(n, seed=0):
 
 
 def write_model(path):
-    from reachset_ros import model as mdl
-    from reachset_ros.estimators import Estimator
-    from reachset_ros.plant import lwa4p_joint_plant
+    from reachset_ros.conformance import model as mdl
+    from reachset_ros.conformance.estimators import Estimator
+    from reachset_ros.systems.plant import lwa4p_joint_plant
     js = {j: mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, HORIZON) for j in JOINTS}
     mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"),
                                   HORIZON, js), path)

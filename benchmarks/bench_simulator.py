@@ -7,8 +7,8 @@ import time
 import numpy as np
 
 from reachset_ros import robot as rb
-from reachset_ros import simulator as sim
-from reachset_ros.reference import ReferenceConfig
+from reachset_ros.sim import simulator as sim
+from reachset_ros.sim.reference import ReferenceConfig
 
 
 def main(n=2500):

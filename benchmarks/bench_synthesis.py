@@ -33,8 +33,8 @@ from pathlib import Path
 
 from reachset_ros import synthesis as sy
 from reachset_ros.bags import read_joint_series
-from reachset_ros.estimators import Estimator
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / ".cache"

@@ -15,7 +15,7 @@ Targets, each starting from a small valid input and mutated by hypothesis:
   replaced by random YAML values, keys deleted), then read the same way;
 - ``model``: model files as ``reachset identify`` writes them (the LWA-4P joint plant by
   name, and one with explicit plant matrices), as bytes and as YAML, loaded with
-  :func:`reachset_ros.model.load`.
+  :func:`reachset_ros.conformance.model.load`.
 
 A case passes if it returns or raises :class:`~reachset_ros.errors.ReachsetError`. Anything
 else is a crash: its traceback is printed and its input saved under ``--out``. A loaded
@@ -49,10 +49,10 @@ from hypothesis import seed as hseed
 from hypothesis import strategies as st
 
 from reachset_ros import bags
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import ReachsetError
-from reachset_ros.estimators import Estimator
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000

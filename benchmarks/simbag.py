@@ -1,6 +1,6 @@
 """Simulated multi-joint recordings for the benchmarks, cached under benchmarks/.cache/.
 
-The per-joint plant of the paper's Appendix A (:func:`reachset_ros.plant.lwa4p_joint_plant`)
+The per-joint plant of the paper's Appendix A (:func:`reachset_ros.systems.plant.lwa4p_joint_plant`)
 runs in closed loop (a PD law around a slow sine, as ``test/test_conformance.py``'s
 ``simulate``) with bounded random process disturbances and measurement noise, all joints
 at once (vectorised across joints). The bag holds ``/joint_states`` (position, velocity,
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from reachset_ros import bags
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 CACHE = Path(__file__).resolve().parent / ".cache"
 JOINTS = tuple(f"arm_{i}_joint" for i in range(1, 7))

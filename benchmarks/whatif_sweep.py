@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import simbag  # noqa: E402
 
 from reachset_ros import conformance as cf  # noqa: E402
-from reachset_ros.estimators import Estimator  # noqa: E402
-from reachset_ros.plant import lwa4p_joint_plant  # noqa: E402
+from reachset_ros.conformance.estimators import Estimator  # noqa: E402
+from reachset_ros.systems.plant import lwa4p_joint_plant  # noqa: E402
 
 TICKS, K = 497_883, 125
 PLANT, EST = lwa4p_joint_plant(), Estimator("fd")

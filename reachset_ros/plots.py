@@ -275,7 +275,7 @@ def demo_plots(res, record, workdir):
     syn = (res.get("reidentify") or res.get("synthesis") or {}).get("joints", {})
     model, refs = None, None
     if res.get("monitor_model"):
-        from . import model as mdl
+        from .conformance import model as mdl
         from .synthesis import read_references
         model = mdl.load(res["monitor_model"])
         refs = {n: [r.slice(0, int(np.searchsorted(r.stamps, until))) for r in rs

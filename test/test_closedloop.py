@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from reachset_ros.closedloop import (analyze, center_coefficients, close_loop, simulate,
+from reachset_ros.systems.closedloop import (analyze, center_coefficients, close_loop, simulate,
                                      simulate_ticks, stability)
-from reachset_ros.controllers import compensated_feedback, lqg, lqr, static_feedback
-from reachset_ros.observers import extended_state_observer, high_gain_observer, kalman_filter
-from reachset_ros.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
-from reachset_ros.reachability import markov_parameters
+from reachset_ros.systems.controllers import compensated_feedback, lqg, lqr, static_feedback
+from reachset_ros.systems.observers import extended_state_observer, high_gain_observer, kalman_filter
+from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
+from reachset_ros.sets.reachability import markov_parameters
 
 PLANT = lwa4p_joint_plant()
 AW_II, AV_II = [0.0348, 3.59], [3.49e-5]      # Table II axis 1

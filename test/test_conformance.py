@@ -8,11 +8,11 @@ import pytest
 
 from reachset_ros import bags
 from reachset_ros import conformance as cf
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import ReachsetError
-from reachset_ros.estimators import Estimator
-from reachset_ros.monitor import JointMonitor, MonitorModel
-from reachset_ros.plant import LinearPlant, lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.conformance.monitor import JointMonitor, MonitorModel
+from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000
@@ -78,7 +78,7 @@ def test_noise_free_data_gives_vanishing_sets():
 
 def test_theorem1_offsets_equal_direct_reachable_set(lwa_data):
     """D_k xi equals the interval of R_a[k] = (+)_{i<k} C A^i W (+) V built with zonotopes."""
-    from reachset_ros.zonotope import Zonotope
+    from reachset_ros.sets.zonotope import Zonotope
     p = lwa_data[0]
     K = 30
     thm = cf.Theorem1.build(p, K)

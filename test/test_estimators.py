@@ -4,11 +4,11 @@ import json
 import numpy as np
 import pytest
 
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import ReachsetError
-from reachset_ros.estimators import Estimator
-from reachset_ros.monitor import Monitor, MonitorModel
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.conformance.monitor import Monitor, MonitorModel
+from reachset_ros.systems.plant import lwa4p_joint_plant
 from test_conformance import DT_NS, T0, run_cli, simulate, write_bag
 
 

@@ -6,10 +6,10 @@ import pytest
 import yaml
 
 from reachset_ros import conformance as cf
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import InfeasibleError
-from reachset_ros.estimators import Estimator
-from reachset_ros.plant import LinearPlant, lwa4p_joint_plant
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
 from test_conformance import DT_NS, T0, run_cli, simulate, write_bag
 

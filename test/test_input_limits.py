@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 
 from reachset_ros import cli
-from reachset_ros import input_limits as il
+from reachset_ros.robot import input_limits as il
 from reachset_ros import robot as rb
 from reachset_ros.errors import InfeasibleError
 

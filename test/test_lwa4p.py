@@ -6,7 +6,9 @@ import pytest
 import yaml
 from rosbags.rosbag2 import Reader
 
-from reachset_ros import bags, lwa4p
+from reachset_ros import bags
+
+from reachset_ros.robot import lwa4p
 from reachset_ros import robot as rb
 from reachset_ros.cli import main
 from reachset_ros.errors import ReachsetError

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 
 from reachset_ros import conformance as cf
-from reachset_ros import monitor as mon_mod
-from reachset_ros.estimators import Estimator
-from reachset_ros.model import ConformanceModel, JointSets
-from reachset_ros.monitor import Monitor, MonitorModel
-from reachset_ros.plant import LinearPlant, lwa4p_joint_plant
+from reachset_ros.conformance import monitor as mon_mod
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.conformance.model import ConformanceModel, JointSets
+from reachset_ros.conformance.monitor import Monitor, MonitorModel
+from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000
@@ -128,7 +128,7 @@ def _collect(plant, y, u, segments, horizon, block):
 @needs_kernel
 @pytest.mark.parametrize("plant_kind", ["lwa4p", "two_outputs_with_feedthrough"])
 def test_compiled_sweep_equals_numpy_sweep_bit_for_bit(plant_kind, monkeypatch):
-    from reachset_ros import kernel
+    from reachset_ros.conformance import compiled as kernel
     p = lwa4p_joint_plant()
     Y, U = closed_loop(p, 1500, 1, seed=5)
     if plant_kind == "two_outputs_with_feedthrough":

@@ -11,10 +11,10 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from reachset_ros import launch
-from reachset_ros import model as mdl
-from reachset_ros.estimators import Estimator
+from reachset_ros.conformance import model as mdl
+from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.nodes.common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, to_stamp
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 JOINTS = ["arm_1_joint", "arm_2_joint"]
 
@@ -487,7 +487,7 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
     """/reference carries the generator's joint names whatever the order (and extra names)
     of /joint_states, the value of each joint at the stamp; ``hold`` set through the
     parameter service freezes it at the end point of the move under way."""
-    from reachset_ros.reference import ReferenceGenerator
+    from reachset_ros.sim.reference import ReferenceGenerator
     from reachset_ros.robot import JOINT_NAMES
     node = launch.start("reference_node", {"seed": 4}, tmp_path)
     got = {}

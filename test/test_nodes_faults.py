@@ -26,12 +26,12 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from reachset_ros import launch
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import ReachsetError
-from reachset_ros.estimators import Estimator
+from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.nodes.common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns, to_stamp
 from reachset_ros.nodes.monitor_node import MonitorCore
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 JOINTS = ["arm_1_joint", "arm_2_joint"]
 DT_NS = 4_000_000

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete
 
-from reachset_ros.controllers import (LinearController, compensated_feedback, control_input, lqg, lqr,
+from reachset_ros.systems.controllers import (LinearController, compensated_feedback, control_input, lqg, lqr,
                                       static_feedback)
-from reachset_ros.observers import (LinearObserver, bilinear, extended_state_observer, high_gain_observer,
+from reachset_ros.systems.observers import (LinearObserver, bilinear, extended_state_observer, high_gain_observer,
                                     kalman_filter, paper_lqg_covariances)
-from reachset_ros.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
+from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
 
 
 def test_lwa4p_plant_matches_appendix_a():

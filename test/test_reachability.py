@@ -1,14 +1,14 @@
-"""Reachability (paper eqs. 3-4, 8-10) and sound invariant sets (reachset_ros.reachability)."""
+"""Reachability (paper eqs. 3-4, 8-10) and sound invariant sets (reachset_ros.sets.reachability)."""
 import time
 
 import numpy as np
 import pytest
 
-from reachset_ros.reachability import (NotStableError, disturbance_output_sets, invariant_outer,
+from reachset_ros.sets.reachability import (NotStableError, disturbance_output_sets, invariant_outer,
                                        markov_parameters, nominal_outputs, radius_coefficients,
                                        rakovic_alpha, reachable_outputs, reachable_subspace,
                                        truncated_sum)
-from reachset_ros.zonotope import Zonotope
+from reachset_ros.sets.zonotope import Zonotope
 
 A_RAKOVIC = np.array([[-0.17, -0.03], [-1.17, -0.03]])
 W_BOX = Zonotope.box([-1, -1], [1, 1])
@@ -119,11 +119,11 @@ def test_superposition_reachable_sets_contain_simulations():
 
 
 def test_radius_coefficients_fast_for_the_lwa4p_loops():
-    from reachset_ros.closedloop import close_loop
-    from reachset_ros.closedloop import radius_coefficients as cl_radius
-    from reachset_ros.controllers import compensated_feedback, static_feedback
-    from reachset_ros.observers import extended_state_observer, high_gain_observer
-    from reachset_ros.plant import lwa4p_joint_plant
+    from reachset_ros.systems.closedloop import close_loop
+    from reachset_ros.systems.closedloop import radius_coefficients as cl_radius
+    from reachset_ros.systems.controllers import compensated_feedback, static_feedback
+    from reachset_ros.systems.observers import extended_state_observer, high_gain_observer
+    from reachset_ros.systems.plant import lwa4p_joint_plant
 
     plant = lwa4p_joint_plant()
     for obs, ctrl in [(high_gain_observer(15, 30), static_feedback(24.4, 0.96)),

@@ -4,7 +4,7 @@ import pytest
 
 from reachset_ros import robot as rb
 from reachset_ros.errors import ReachsetError
-from reachset_ros.reference import ReferenceConfig, ReferenceGenerator
+from reachset_ros.sim.reference import ReferenceConfig, ReferenceGenerator
 
 TOL = 1e-9
 
@@ -85,7 +85,7 @@ def test_bad_configs_are_rejected():
 
 
 def test_stream_without_hold_is_the_generator_at_the_stamps():
-    from reachset_ros.reference import ReferenceStream
+    from reachset_ros.sim.reference import ReferenceStream
     gen, ref = ReferenceGenerator(seed=5), ReferenceGenerator(seed=5)
     s = ReferenceStream(gen)
     t0 = 1_700_000_000_123_000_000
@@ -99,7 +99,7 @@ def test_stream_without_hold_is_the_generator_at_the_stamps():
 def test_stream_hold_finishes_the_move_rests_and_resumes_continuously():
     """hold: the move under way ends as planned, then rest at its end point; clearing it
     continues with the next move as if no time had passed (continuous reference)."""
-    from reachset_ros.reference import ReferenceStream
+    from reachset_ros.sim.reference import ReferenceStream
     ref = ReferenceGenerator(seed=2)
     s = ReferenceStream(ReferenceGenerator(seed=2))
     dt_ns = 4_000_000

@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from reachset_ros import bags
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros.cli import main
-from reachset_ros.plant import lwa4p_joint_plant
+from reachset_ros.systems.plant import lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000

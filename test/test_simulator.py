@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from reachset_ros import robot as rb
-from reachset_ros import simulator as sim
+from reachset_ros.sim import simulator as sim
 from reachset_ros.errors import ReachsetError
 
 Q0 = np.array([0.3, -0.4, 0.8, 0.2, 0.5, -0.3])

@@ -13,13 +13,13 @@ import yaml
 
 from reachset_ros import cli
 from reachset_ros import conformance as cf
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros import synthesis as sy
-from reachset_ros.closedloop import analyze, close_loop, simulate
+from reachset_ros.systems.closedloop import analyze, close_loop, simulate
 from reachset_ros.errors import InfeasibleError, ReachsetError
-from reachset_ros.estimators import Estimator
-from reachset_ros.plant import lwa4p_joint_plant
-from reachset_ros.reachability import markov_parameters
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.systems.plant import lwa4p_joint_plant
+from reachset_ros.sets.reachability import markov_parameters
 
 PLANT = lwa4p_joint_plant()
 JOINTS = ("arm_1_joint", "arm_2_joint", "arm_3_joint")
@@ -80,7 +80,7 @@ def test_lti_simulate_equals_the_tick_loop():
 
 
 def test_reference_loop_matches_the_tick_by_tick_nodes_code_path():
-    from reachset_ros.closedloop import simulate_ticks
+    from reachset_ros.systems.closedloop import simulate_ticks
     rng = np.random.default_rng(1)
     for g in (sy.DEFAULT_GAINS, {"observer": "eso", "controller": "compensated", "omega": 20, "zeta": 1,
                                  "l1": 57.1, "l2": 103.3, "l3": 18.1, "eps": 0.01}):

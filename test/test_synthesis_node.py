@@ -17,7 +17,7 @@ import yaml
 from reachset_msgs.srv import Synthesize
 
 from reachset_ros import launch
-from reachset_ros import model as mdl
+from reachset_ros.conformance import model as mdl
 from reachset_ros import synthesis as sy
 from reachset_ros.nodes.common import get_remote_parameters, set_remote_parameters
 

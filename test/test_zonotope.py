@@ -1,4 +1,4 @@
-"""Zonotope value type: paper Props. 1-4, containment, reduction (reachset_ros.zonotope)."""
+"""Zonotope value type: paper Props. 1-4, containment, reduction (reachset_ros.sets.zonotope)."""
 import math
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 
-from reachset_ros.zonotope import Zonotope, box, halfspace_normals
+from reachset_ros.sets.zonotope import Zonotope, box, halfspace_normals
 
 Z_PAPER = Zonotope([-4, 1], [[-3, -2, -1], [2, 3, 4]])
 

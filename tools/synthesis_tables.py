@@ -2,7 +2,7 @@
 
 Subcommands::
 
-    # a bag of the simulated LWA-4P (reachset_ros.simulator, realistic model error) driven by
+    # a bag of the simulated LWA-4P (reachset_ros.sim.simulator, realistic model error) driven by
     # the nodes' control law with the gains of a model file (default: HG 15/30, omega 20, zeta 1)
     .venv/bin/python tools/synthesis_tables.py simulate --seconds 300 --seed 1 [--gains MODEL.yaml] --out BAG
 
@@ -32,7 +32,7 @@ ESO0 = {"observer": "eso", "controller": "compensated", "omega": 20.0, "zeta": 1
 
 
 def simulate(args):
-    from reachset_ros import model as mdl
+    from reachset_ros.conformance import model as mdl
     from reachset_ros import synthesis as sy
     gains = None
     if args.gains:

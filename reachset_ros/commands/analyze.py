@@ -63,10 +63,10 @@ def _finite_positive(name, v):
 def run(args):
     import math
 
-    from ..closedloop import analyze, close_loop
-    from ..controllers import compensated_feedback, static_feedback
-    from ..observers import extended_state_observer, high_gain_observer
-    from ..plant import lwa4p_joint_plant
+    from ..systems.closedloop import analyze, close_loop
+    from ..systems.controllers import compensated_feedback, static_feedback
+    from ..systems.observers import extended_state_observer, high_gain_observer
+    from ..systems.plant import lwa4p_joint_plant
 
     d = _DEFAULTS[args.observer]
     ctrl_kind = args.controller or d["controller"]

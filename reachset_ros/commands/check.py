@@ -1,6 +1,6 @@
 """``reachset check``: batch Theorem-1 conformance check of bags against a model."""
 from .. import conformance as cf
-from .. import model as mdl
+from ..conformance import model as mdl
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon
 

@@ -3,7 +3,7 @@
 Least squares with Pinocchio's joint-torque regressor (base inertial parameters, armature,
 friction and a torque scale per joint) on the given runs of the real recordings; the
 result is the nominal model M_hat, psi_hat of the feedback linearization and of
-``reachset import-lwa4p`` (see reachset_ros.lwa4p and docs/robot.md). The shipped
+``reachset import-lwa4p`` (see reachset_ros.robot.lwa4p and docs/robot.md). The shipped
 config/lwa4p_nominal.yaml was made with ``--runs 1-70``; runs 71-100 are held out.
 """
 import shlex
@@ -48,7 +48,7 @@ def run(args):
     import dataclasses
     from pathlib import Path
 
-    from .. import lwa4p
+    from ..robot import lwa4p
     from ..errors import ReachsetError
     out = Path(args.out)
     if out.exists():

@@ -23,10 +23,10 @@ import sys
 import numpy as np
 
 from .. import conformance as cf
-from .. import model as mdl
+from ..conformance import model as mdl
 from ..errors import ReachsetError
-from ..estimators import ESTIMATORS, Estimator
-from ..plant import lwa4p_joint_plant
+from ..conformance.estimators import ESTIMATORS, Estimator
+from ..systems.plant import lwa4p_joint_plant
 from . import emit
 from ._bagargs import add_bag_arguments, check_out_path, load_series, require_horizon
 

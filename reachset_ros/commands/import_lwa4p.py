@@ -3,7 +3,7 @@
 ``/joint_states`` (position, velocity, effort = logged torque as logged) and
 ``/plant_input`` (u_p = M_hat(q)^-1 (s tau - psi_hat(q, qd)) with the identified nominal
 model, config/lwa4p_nominal.yaml by default), header stamps = receive times, runs separated
-by a pause in the stamps. See reachset_ros.lwa4p.import_runs for the exact layout.
+by a pause in the stamps. See reachset_ros.robot.lwa4p.import_runs for the exact layout.
 """
 from . import emit
 
@@ -23,7 +23,7 @@ def add_arguments(p):
 
 
 def run(args):
-    from .. import lwa4p
+    from ..robot import lwa4p
     from ..errors import ReachsetError
     if not args.gap > 0:
         raise ReachsetError(f"--gap must be > 0 s, got {args.gap}")

@@ -2,7 +2,7 @@
 
 Finds per axis the largest symmetric U_p = [-a, a] with M(Q) U_p (+) psi(Q, dQ) inside
 T = [-tau_max, tau_max] for the boxes Q (positions), dQ (velocities), soundly (see
-:mod:`reachset_ros.input_limits`). Defaults: the shipped LWA-4P model and the paper's
+:mod:`reachset_ros.robot.input_limits`). Defaults: the shipped LWA-4P model and the paper's
 Table I (tau_max 160/160/160/160/40/40 N m, q_max 140/45/100/140/80/140 deg, qd_max 0.7 rad/s).
 ``--check A...`` verifies given limits instead (e.g. the paper's 26 26 26 26 100 100).
 ``--out FILE`` writes a synthesis config fragment (``u_max`` per joint) for
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import input_limits as il
+from ..robot import input_limits as il
 from .. import robot as rb
 from ..atomic import write_yaml
 from ..errors import ReachsetError

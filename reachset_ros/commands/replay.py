@@ -4,9 +4,9 @@ import time
 import numpy as np
 
 from .. import conformance as cf
-from .. import model as mdl
+from ..conformance import model as mdl
 from ..errors import ReachsetError
-from ..monitor import JointMonitor, Monitor, MonitorModel
+from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon
 
@@ -23,7 +23,7 @@ def replay_joints(model, series, thm=None):
     """Feed the series tick by tick to the online monitor; returns per-joint results, durations.
 
     Joints with one-dimensional outputs and identical stamps run together in one
-    :class:`~reachset_ros.monitor.Monitor` (the monitor node's code path); otherwise each
+    :class:`~reachset_ros.conformance.monitor.Monitor` (the monitor node's code path); otherwise each
     joint runs on its own (a ``Monitor`` of one joint, or a ``JointMonitor`` for
     multi-dimensional outputs).
     """

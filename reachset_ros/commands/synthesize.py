@@ -20,10 +20,10 @@ import math
 import sys
 import time
 
-from .. import model as mdl
+from ..conformance import model as mdl
 from .. import synthesis as sy
 from ..errors import ReachsetError
-from ..estimators import ESTIMATORS
+from ..conformance.estimators import ESTIMATORS
 from . import emit
 from ._bagargs import add_bag_arguments, check_out_path, parse_joints
 

@@ -22,10 +22,10 @@ from rclpy.node import Node
 from reachset_msgs.msg import JointEstimate, JointReference, PlantInput, SafeStop
 from std_msgs.msg import Float64MultiArray
 
-from .. import model as mdl
+from ..conformance import model as mdl
 from .. import robot
 from ..errors import ReachsetError
-from ..gains import check_gains
+from ..systems.gains import check_gains
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 
@@ -139,8 +139,8 @@ class ControllerNode(Node):
         gains = gains_from(values, self.joints)
         u_max = u_max_array(values.get("u_max", self.get_parameter("u_max").value), len(self.joints))
         u_ff = float(values.get("u_ff_bound", self.get_parameter("u_ff_bound").value))
-        from .. import closedloop
-        from ..plant import lwa4p_joint_plant
+        from ..systems import closedloop
+        from ..systems.plant import lwa4p_joint_plant
         for i, j in enumerate(self.joints):
             js = model.joints.get(j) if model is not None else None
             if js is not None:

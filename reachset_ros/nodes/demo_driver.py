@@ -201,7 +201,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         # switch itself (estimates and commands jump) is not a motion the training covered
         timed("settle", settle)
         # the monitor gets the model with the demo's safety margin (inflation of the sets)
-        from .. import model as mdl
+        from ..conformance import model as mdl
         from dataclasses import replace
         monitor_model = workdir / "monitor_model.yaml"
         mdl.save(replace(mdl.load(res.result.model_file), inflation=float(margin)), monitor_model)

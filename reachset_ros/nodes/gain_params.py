@@ -1,6 +1,6 @@
 """Per-joint gain parameters shared by the observer and controller nodes."""
 from ..errors import ReachsetError
-from ..gains import DEFAULTS, Gains
+from ..systems.gains import DEFAULTS, Gains
 from .common import desc
 
 GAIN_DOCS = {

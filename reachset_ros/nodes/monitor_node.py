@@ -1,7 +1,7 @@
 """monitor_node: the online conformance monitor (Theorem 1 each 4 ms tick) with safe stop.
 
 Pairs ``/joint_states`` (y = position) and ``/plant_input`` (u_p) by header stamp and joint
-name, feeds :class:`reachset_ros.monitor.Monitor` one tick at a time, publishes
+name, feeds :class:`reachset_ros.conformance.monitor.Monitor` one tick at a time, publishes
 ``/conformance/status`` every tick and ``/diagnostics`` at about 1 Hz. On the first
 violation, or on a fault (missing data for more than ``max_missing_ticks`` ticks, an
 invalid sample, a joint-name mismatch, a stamp going backwards), it publishes a latched
@@ -28,11 +28,11 @@ from reachset_msgs.msg import ConformanceStatus, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from .. import model as mdl
+from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
 from ..conformance import Theorem1
 from ..errors import ReachsetError
-from ..monitor import Monitor, MonitorModel
+from ..conformance.monitor import Monitor, MonitorModel
 from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a

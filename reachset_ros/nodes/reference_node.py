@@ -9,13 +9,13 @@ and |qdd_d| <= qdd_max (the paper's U_ref), reproducible from ``seed``.
 
 ``hold`` (settable at run time): the move under way is finished and the reference then
 rests at its end point (velocity and acceleration 0) until ``hold`` is cleared; the moves
-then continue where they stopped (:class:`reachset_ros.reference.ReferenceStream`).
+then continue where they stopped (:class:`reachset_ros.sim.reference.ReferenceStream`).
 """
 from rclpy.node import Node
 from reachset_msgs.msg import JointReference
 from sensor_msgs.msg import JointState
 
-from ..reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
+from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
 from ..robot import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
 

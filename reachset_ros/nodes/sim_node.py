@@ -1,4 +1,4 @@
-"""sim_node: the simulated LWA-4P (reachset_ros.simulator) as a ROS node.
+"""sim_node: the simulated LWA-4P (reachset_ros.sim.simulator) as a ROS node.
 
 Publishes ``/joint_states`` at 250 Hz from its own clock (stamp = the simulator's tick
 time, anchored to the wall clock at start); applies the latest ``/effort_commands``
@@ -23,9 +23,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
-from .. import simulator as sim
+from ..sim import simulator as sim
 from ..errors import ReachsetError
-from ..reference import ReferenceConfig
+from ..sim.reference import ReferenceConfig
 from .common import CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up

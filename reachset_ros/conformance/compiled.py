@@ -4,7 +4,7 @@ Two functions, both exact copies of numpy code paths of this package (same float
 operations in the same order, compiled with ``-ffp-contract=off``), so results are bitwise
 equal whether or not the kernel is used:
 
-* ``reachset_monitor_tick``: one tick of :class:`reachset_ros.monitor.Monitor`;
+* ``reachset_monitor_tick``: one tick of :class:`reachset_ros.conformance.monitor.Monitor`;
 * ``reachset_sweep_block``: one block of :func:`reachset_ros.conformance.sweep`.
 
 ``LIB`` is None when the shared library was not built (e.g. no C compiler at install time)

@@ -1,8 +1,8 @@
 """Closed loops of plant, observer and controller; reachable tracking error and input.
 
-:func:`close_loop` composes a :class:`~reachset_ros.plant.LinearPlant`, a
-:class:`~reachset_ros.observers.LinearObserver` and a
-:class:`~reachset_ros.controllers.LinearController` into the *error system* of paper
+:func:`close_loop` composes a :class:`~reachset_ros.systems.plant.LinearPlant`, a
+:class:`~reachset_ros.systems.observers.LinearObserver` and a
+:class:`~reachset_ros.systems.controllers.LinearController` into the *error system* of paper
 Sec. III-A: reference and feedforward set to zero (superposition), inputs the unit-box
 coefficients of the disturbance generators, outputs ``[q_hat, qd_hat, u_p]``
 (``y~_cl = [y_cl, u_p]``)::
@@ -16,7 +16,7 @@ The algebraic loop that arises when the estimate depends on the current input
 
 :func:`analyze` returns ``R_e`` (projection onto the estimate errors) and
 ``R_u = projection (+) U_ff`` of the minimal robust positively invariant set, both as a
-sound outer bound and as the truncated inner sum (:mod:`reachset_ros.reachability`).
+sound outer bound and as the truncated inner sum (:mod:`reachset_ros.sets.reachability`).
 
 Pure numpy/scipy; no ROS import.
 """
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import reachability as reach
-from .zonotope import Zonotope
+from ..sets import reachability as reach
+from ..sets.zonotope import Zonotope
 
 __all__ = ["ClosedLoop", "close_loop", "Stability", "stability", "Analysis", "analyze",
            "radius_coefficients", "center_coefficients", "closed_loop_tick", "simulate",
@@ -219,7 +219,7 @@ def _alphas(cl, alpha_w, alpha_v):
 def radius_coefficients(cl, H=None, eps=reach.EPS, return_info=False):
     """Box radius of ``H`` times the outer invariant output set: ``Kw alpha_w + Kv alpha_v``.
 
-    Thin wrapper of :func:`reachset_ros.reachability.radius_coefficients` for a
+    Thin wrapper of :func:`reachset_ros.sets.reachability.radius_coefficients` for a
     :class:`ClosedLoop` (outputs ``[q_hat, qd_hat, u_p]`` unless ``errors`` was changed).
 
     Returns
@@ -317,7 +317,7 @@ def analyze(cl, alpha_w, alpha_v, u_ff=0.0, c_w=None, c_v=None, eps=reach.EPS, s
 
     ``R_e = [I 0] R~_cl,e[k_inf]``, ``R_u = [0 I] R~_cl,e[k_inf] (+) U_ff`` with
     ``U_ff = [-u_ff, u_ff]`` and ``R~_cl,e[k_inf]`` the mRPI set of the error system
-    (outer bound: :func:`reachset_ros.reachability.radius_coefficients`).
+    (outer bound: :func:`reachset_ros.sets.reachability.radius_coefficients`).
 
     Parameters
     ----------
@@ -450,7 +450,7 @@ def simulate(cl, w, v, z0=None):
 def simulate_ticks(plant, observer, controller, w, v, errors=("q", "qd"), x_ref=None, u_ff=None):
     """Simulate plant + observer + controller tick by tick (the nodes' code path).
 
-    Uses :func:`closed_loop_tick` and :class:`~reachset_ros.observers.ObserverState`.
+    Uses :func:`closed_loop_tick` and :class:`~reachset_ros.systems.observers.ObserverState`.
 
     Parameters
     ----------

@@ -46,8 +46,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
-from . import robot as rb
-from .errors import InfeasibleError, ReachsetError
+from .. import robot as rb
+from ..errors import InfeasibleError, ReachsetError
 
 __all__ = ["interval_rnea", "mass_psi_bounds", "InputLimits", "input_limits", "check_limits",
            "sampled_worst_torque"]

@@ -14,7 +14,7 @@ zeta, l1, l2, l3). This module uses the problem's structure:
   non-redundant rows ``G alpha >= h`` (:class:`AlphaPolytope`; centres fixed at 0 as in the
   paper's Appendix A).
 * For fixed ``theta`` the closed loop is fixed; the interval-hull radii of the sound outer
-  invariant sets are linear in ``alpha`` (:func:`reachset_ros.closedloop.radius_coefficients`):
+  invariant sets are linear in ``alpha`` (:func:`reachset_ros.systems.closedloop.radius_coefficients`):
   ``||R_e|| = c_e . alpha`` and ``radius(R_u) = c_u . alpha``. The inner problem is the
   linear programme ``min c_e . alpha  s.t.  G alpha >= h,  c_u . alpha <= u_max - u_ff - ref``
   (HiGHS).
@@ -50,10 +50,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linprog, minimize
 
-from . import conformance as cf
-from .closedloop import close_loop, radius_coefficients
-from .errors import InfeasibleError, ReachsetError
-from .reachability import NotStableError, spectral_radius_reachable
+from .. import conformance as cf
+from ..systems.closedloop import close_loop, radius_coefficients
+from ..bags.references import ESTIMATE_TOPIC, REFERENCE_TOPIC, Reference, read_estimates, read_references
+from ..errors import InfeasibleError, ReachsetError
+from ..sets.reachability import NotStableError, spectral_radius_reachable
 
 __all__ = ["DEFAULT_CONFIG", "load_config", "config_path", "u_max_for", "SearchSpace", "PARAMS",
            "components_from_gains", "Reference", "read_references", "read_estimates", "LoopIO", "loop_io",
@@ -71,8 +72,6 @@ PENALTY = 1e6
 #: Relative margin kept from U_p in the LP so that the floating-point clean-up of alpha
 #: (:func:`reachset_ros.conformance.make_sound`) cannot push R_u outside U_p.
 U_MARGIN = 1e-4  # relative slack of R_u inside U_p: absorbs the final outer-bound and soundness inflation
-REFERENCE_TOPIC = "/reference"
-ESTIMATE_TOPIC = "/observer/estimate"
 
 DEFAULT_CONFIG = {
     "format": "reachset_ros/synthesis-config/1",
@@ -109,7 +108,7 @@ def _merge(base, over):
 
 def config_path():
     """``config/synthesis.yaml`` of a source checkout or of the installed share directory."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parents[1]   # the reachset_ros package directory
     for p in (here.parent / "config" / "synthesis.yaml",
               here.parents[3] / "share" / "reachset_ros" / "config" / "synthesis.yaml"
               if len(here.parents) > 3 else None):
@@ -174,7 +173,7 @@ class SearchSpace:
     log : frozenset of str
         Parameters searched on a logarithmic scale.
     eso_input : {"previous", "current"}
-        Plant input fed to the ESO (see :func:`reachset_ros.observers.extended_state_observer`).
+        Plant input fed to the ESO (see :func:`reachset_ros.systems.observers.extended_state_observer`).
     dt : float
     """
 
@@ -283,8 +282,8 @@ class SearchSpace:
 
     def build(self, values):
         """Observer and controller of the parameter values."""
-        from .controllers import compensated_feedback, static_feedback
-        from .observers import extended_state_observer, high_gain_observer
+        from ..systems.controllers import compensated_feedback, static_feedback
+        from ..systems.observers import extended_state_observer, high_gain_observer
         v = values
         if self.observer == "hg":
             obs = high_gain_observer(v["h1"], v["h2"], v["eps"], self.dt)
@@ -326,111 +325,6 @@ def components_from_gains(gains, dt=0.004):
     """``(observer, controller)`` of a model file's ``gains`` dict (for the nodes)."""
     sp = SearchSpace.from_gains(gains, dt)
     return sp.build(sp.values)
-
-
-# ====================================================================== bags: references, estimates
-@dataclass(frozen=True)
-class Reference:
-    """One consecutive stretch of a joint's reference (``/reference``): q_d, qd_d, qdd_d."""
-
-    stamps: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    warmup: int = 0     # leading ticks simulated but not counted (search windows)
-
-    def __len__(self):
-        return len(self.stamps)
-
-    def slice(self, lo, hi, warmup=0):
-        return Reference(self.stamps[lo:hi], self.q[lo:hi], self.qd[lo:hi], self.qdd[lo:hi], int(warmup))
-
-
-def read_topic_rows(paths, topic, fields, joints=None):
-    """Per-joint ``(stamps, values (T, len(fields)))`` of a topic with ``name[]`` and float arrays.
-
-    Decoded with rosbags (the bag's own message definitions); sorted by header stamp,
-    duplicate stamps dropped. Returns ``None`` when no bag has the topic.
-    """
-    from rosbags.rosbag2 import Reader
-    from .bags import typestore
-    ts = typestore()
-    cols, found = {}, False
-    for p in paths:
-        path = Path(p)
-        try:
-            with Reader(path) as reader:
-                conns = [c for c in reader.connections if c.topic == topic]
-                if not conns:
-                    continue
-                found = True
-                for conn, _, raw in reader.messages(connections=conns):
-                    msg = ts.deserialize_cdr(raw, conn.msgtype)
-                    st = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-                    arrs = [np.asarray(getattr(msg, f), float) for f in fields]
-                    for i, nm in enumerate(msg.name):
-                        if joints is not None and nm not in joints:
-                            continue
-                        row = [a[i] if i < len(a) else np.nan for a in arrs]
-                        cols.setdefault(nm, ([], []))
-                        cols[nm][0].append(st)
-                        cols[nm][1].append(row)
-        except ReachsetError:
-            raise
-        except Exception as e:  # rosbags raises many types for damaged files
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise ReachsetError(f"{path}: cannot read {topic} ({type(e).__name__}: {first})") from None
-    if not found:
-        return None
-    out = {}
-    for nm, (st, rows) in cols.items():
-        st = np.asarray(st, np.int64)
-        vals = np.asarray(rows, float).reshape(len(st), len(fields))
-        order = np.argsort(st, kind="stable")
-        st, vals = st[order], vals[order]
-        keep = np.ones(len(st), bool)
-        keep[1:] = st[1:] != st[:-1]
-        out[nm] = (st[keep], vals[keep])
-    return out
-
-
-def _split(stamps, valid, dt):
-    from .bags import segments_of
-    return segments_of(stamps, valid, dt)
-
-
-def read_references(paths, joints=None, dt=0.004):
-    """References of the bags per joint: ``{joint: [Reference, ...]}`` (one per consecutive stretch).
-
-    Each bag is read on its own (a stretch never spans two bags). Returns ``{}`` when no bag
-    has a ``/reference`` topic.
-    """
-    out = {}
-    for p in paths:
-        rows = read_topic_rows([p], REFERENCE_TOPIC, ("position", "velocity", "acceleration"), joints)
-        if rows is None:
-            continue
-        for nm, (st, v) in rows.items():
-            valid = np.all(np.isfinite(v), axis=1)
-            for a, b in _split(st, valid, dt):
-                out.setdefault(nm, []).append(Reference(st[a:b], v[a:b, 0].copy(), v[a:b, 1].copy(),
-                                                        v[a:b, 2].copy()))
-    return out
-
-
-def read_estimates(paths, joints=None):
-    """``{joint: (stamps, [q_hat, qd_hat, d_hat])}`` of ``/observer/estimate``, or ``None``."""
-    rows = {}
-    any_found = False
-    for p in paths:
-        r = read_topic_rows([p], ESTIMATE_TOPIC, ("position", "velocity", "disturbance"), joints)
-        if r is None:
-            continue
-        any_found = True
-        for nm, (st, v) in r.items():
-            s0, v0 = rows.get(nm, (np.zeros(0, np.int64), np.zeros((0, 3))))
-            rows[nm] = (np.concatenate([s0, st]), np.vstack([v0, v]))
-    return rows if any_found else None
 
 
 # ====================================================================== closed loop with references
@@ -712,7 +606,7 @@ def steady_state(io, plant, q0, qd0, qdd0, cols, solver=None):
 
 def steady_state_solver(io, cols):
     """``rhs -> z`` solving ``(I - A) z = rhs`` on the reachable subspace of the reference inputs."""
-    from .reachability import reachable_subspace
+    from ..sets.reachability import reachable_subspace
     V = reachable_subspace(io.A, io.B[:, cols])    # excludes e.g. the constant-disturbance state
     Mp = np.linalg.pinv((np.eye(io.A.shape[0]) - io.A) @ V)
     VM = V @ Mp
@@ -1052,7 +946,7 @@ class Evaluator:
         try:
             Kw, Kv = radius_coefficients(cl)
         except (NotStableError, ValueError, np.linalg.LinAlgError) as e:
-            from .closedloop import stability
+            from ..systems.closedloop import stability
             rho = stability(cl).spectral_radius
             return LoopData(False, 2 * PENALTY + min(rho, 1e3), str(e).splitlines()[0])
         ref = None
@@ -1232,7 +1126,7 @@ class JointResult:
 
 def _finalize(problem, space, values, alpha, mode, evaluations=0, t0=None, notes=(), check=True):
     """Make the sets sound in floating point, compute the final R_e, R_u, check conformance."""
-    from .closedloop import analyze
+    from ..systems.closedloop import analyze
     pb = problem
     pw = pb.plant.Gw.shape[1]
     n, ny = pb.plant.A.shape[0], pb.plant.C.shape[0]
@@ -1470,9 +1364,9 @@ def lqg_baseline(problem, alpha_w, alpha_v, r_values, Q=None, form="predictor"):
     ``re_norm_best_sets``: ||R_e|| with the sets re-chosen for this controller (the inner LP
     without the input constraint).
     """
-    from .closedloop import analyze
-    from .controllers import lqg
-    from .plant import lwa4p_robot_model
+    from ..systems.closedloop import analyze
+    from ..systems.controllers import lqg
+    from ..systems.plant import lwa4p_robot_model
     pb = problem
     model = lwa4p_robot_model(dt=pb.plant.dt)
     rows = []
@@ -1575,8 +1469,8 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
     list of dict
         One ``{"step": ..., "results": {joint: JointResult}}`` per synthesis/re-identification.
     """
-    from .estimators import Estimator
-    from .plant import lwa4p_joint_plant
+    from ..conformance.estimators import Estimator
+    from ..systems.plant import lwa4p_joint_plant
     plant = plant or lwa4p_joint_plant(dt=dt)
     estimator = estimator or Estimator("fd")
     thm = cf.Theorem1.build(plant, horizon)
@@ -1608,7 +1502,7 @@ def _as_series(data, dt):
         return data, {}
     if isinstance(data, tuple) and len(data) == 2 and isinstance(data[0], dict):
         return data[0], dict(data[1] or {})
-    from .bags import read_joint_series
+    from ..bags import read_joint_series
     paths = [Path(p) for p in data]
     series, _ = read_joint_series(paths, None, dt)
     return series, read_references(paths, list(series), dt)
@@ -1697,7 +1591,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
     -------
     dict name -> Recording
     """
-    from .plant import lwa4p_joint_plant
+    from ..systems.plant import lwa4p_joint_plant
     plant = plant or lwa4p_joint_plant()
     dt = plant.dt
     out = {}
@@ -1722,7 +1616,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
 
 def recordings_series(recs, dt=0.004):
     """``({joint: JointSeries}, {joint: [Reference]})`` of :func:`simulate_recordings` output."""
-    from .bags import JointSeries
+    from ..bags import JointSeries
     series, refs = {}, {}
     for name, r in recs.items():
         n = len(r.stamps)
@@ -1737,7 +1631,7 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
     ``/joint_states`` (position = y), ``/plant_input`` (u_p), and optionally ``/reference``
     (q_d, qd_d, qdd_d) and ``/observer/estimate`` (q_hat, qd_hat, d_hat).
     """
-    from . import bags
+    from .. import bags
     ts = bags.typestore()
     JR = ts.types["reachset_msgs/msg/JointReference"]
     JE = ts.types["reachset_msgs/msg/JointEstimate"]
@@ -1772,16 +1666,16 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
 
 
 def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None):
-    """Recordings of the project's simulated LWA-4P (:mod:`reachset_ros.simulator`) in closed loop.
+    """Recordings of the project's simulated LWA-4P (:mod:`reachset_ros.sim.simulator`) in closed loop.
 
     The nodes' code path without ROS: per tick the measurement ``y[k] = q[k-1]`` (one sample
     of output delay) goes through each joint's observer and control law
-    (:func:`reachset_ros.closedloop.closed_loop_tick`, ``u_ff = qdd_d``), the torque is the
+    (:func:`reachset_ros.systems.closedloop.closed_loop_tick`, ``u_ff = qdd_d``), the torque is the
     feedback linearization ``tau = M(q_hat) u_p + psi(q_hat, qd_hat)`` of the *nominal* model
     (the controller node's law) and the simulated arm (the "true" robot with model error,
     friction, quantization and noise; :meth:`SimConfig.realistic`) applies it with one sample
     of input delay. The references are the project's random point-to-point trajectories
-    (:class:`reachset_ros.reference.ReferenceGenerator`, |qdd_d| <= 2).
+    (:class:`reachset_ros.sim.reference.ReferenceGenerator`, |qdd_d| <= 2).
 
     Parameters
     ----------
@@ -1795,10 +1689,10 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     -------
     dict name -> Recording (every joint of the arm)
     """
-    from . import reference as refm
-    from . import robot as rb
-    from . import simulator as simm
-    from .closedloop import closed_loop_tick
+    from ..sim import reference as refm
+    from .. import robot as rb
+    from ..sim import simulator as simm
+    from ..systems.closedloop import closed_loop_tick
     cfg = sim_config or simm.SimConfig.realistic(seed=seed)
     arm = simm.SimulatedArm(cfg, seed=seed)
     names = tuple(arm.joint_names)
@@ -1874,8 +1768,8 @@ class BagSynthesis:
         return d
 
     def model(self, command=""):
-        """The :class:`reachset_ros.model.ConformanceModel` of the results (gains per joint)."""
-        from . import model as mdl
+        """The :class:`reachset_ros.conformance.model.ConformanceModel` of the results (gains per joint)."""
+        from ..conformance import model as mdl
         joints = {}
         for n, r in self.results.items():
             joints[n] = mdl.JointSets(tuple(r.alpha_w.tolist()), tuple(r.alpha_v.tolist()), tuple(r.c_w.tolist()),
@@ -1908,10 +1802,10 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     -------
     BagSynthesis
     """
-    from . import model as mdl
-    from .bags import read_joint_series
-    from .estimators import Estimator
-    from .plant import lwa4p_joint_plant
+    from ..conformance import model as mdl
+    from ..bags import read_joint_series
+    from ..conformance.estimators import Estimator
+    from ..systems.plant import lwa4p_joint_plant
     cfg = load_config(config)
     bags = tuple(Path(b) for b in bags)
     if mode not in ("combined", "separate", "reidentify"):

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, replace
 
 from . import closedloop
 from .controllers import compensated_feedback, static_feedback
-from .errors import ReachsetError
+from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 

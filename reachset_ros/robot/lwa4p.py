@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import robot as rb
-from .atomic import write_yaml
-from .errors import ReachsetError
+from .. import robot as rb
+from ..atomic import write_yaml
+from ..errors import ReachsetError
 
 DT = 0.004
 #: Stamp of the first sample of the first imported run: 2018-10-01T00:00:00Z (IROS 2018).
@@ -289,7 +289,7 @@ def write_yaml_atomic(path, doc: dict, header: str = "") -> None:
 
 def default_nominal_path() -> Path:
     """The shipped ``config/lwa4p_nominal.yaml`` (source checkout, or installed share/)."""
-    here = Path(__file__).resolve().parent.parent / "config" / NOMINAL_FILE
+    here = Path(__file__).resolve().parents[2] / "config" / NOMINAL_FILE
     if here.is_file():
         return here
     try:
@@ -349,7 +349,7 @@ def import_runs(root, runs, out, model: rb.RobotModel | None = None,
     Returns a summary ``{"runs", "samples", "plant_inputs", "first_stamp_ns",
     "last_stamp_ns"}``.
     """
-    from .bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
+    from ..bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
     out = Path(out)
     if out.exists():
         raise ReachsetError(f"{out}: output bag already exists")

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernel
-from .conformance import Theorem1, _plan, advance, matvec, matvec_into, predict_output
+from . import compiled
+from . import Theorem1, _plan, advance, matvec, matvec_into, predict_output
 
 
 @dataclass(frozen=True)
@@ -416,7 +416,7 @@ class _TickState(ctypes.Structure):
                     "status")])
 
 
-_KERNEL, KERNEL_PATH = kernel.LIB, kernel.PATH
+_KERNEL, KERNEL_PATH = compiled.LIB, compiled.PATH
 
 
 def _tick_kernel_applies(plant, estimator, joints):

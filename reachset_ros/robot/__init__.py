@@ -42,12 +42,12 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .errors import ReachsetError
+from ..errors import ReachsetError
 
 #: Joint names of the LWA-4P, in kinematic order.
 JOINT_NAMES = tuple(f"arm_{i}_joint" for i in range(1, 7))
 #: The shipped URDF (kinematics of SPEC.md; plausible, non-identified inertial values).
-DEFAULT_URDF = Path(__file__).resolve().parent / "data" / "lwa4p.urdf"
+DEFAULT_URDF = Path(__file__).resolve().parents[1] / "data" / "lwa4p.urdf"
 #: Paper Table I: torque limit used for deriving U_p [N m].
 TABLE1_TAU_MAX = np.array([160.0, 160.0, 160.0, 160.0, 40.0, 40.0])
 #: Paper Table I: the box Q = [-q_max, q_max] [rad] (140/45/100/140/80/140 deg).

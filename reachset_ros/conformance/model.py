@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .atomic import write_yaml
-from .errors import ReachsetError
+from ..atomic import write_yaml
+from ..errors import ReachsetError
 from .estimators import Estimator
-from .plant import LinearPlant, lwa4p_joint_plant
+from ..systems.plant import LinearPlant, lwa4p_joint_plant
 
 FORMAT = "reachset_ros/model/1"
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ReachsetError
+from ..errors import ReachsetError
 
 
 @dataclass(frozen=True)
@@ -217,7 +217,7 @@ def _observer(plant, y, u, m, window, gains):
     result for one test case does not depend on how many are computed together (batch
     check and monitor agree to the bit). Causal: it reads only samples before m.
     """
-    from .conformance import matvec
+    from . import matvec
     G = np.array(gains, dtype=np.float64)
     n, ny = plant.A.shape[0], plant.C.shape[0]
     if G.shape != (window, n, ny):

@@ -30,7 +30,7 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from .errors import ReachsetError
+from ..errors import ReachsetError
 
 #: Topics of the bag layout (../shared/INTERFACES.md).
 JOINT_STATES = "/joint_states"
@@ -45,7 +45,7 @@ def _msg_dirs():
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
             yield Path(prefix) / "share" / "reachset_msgs" / "msg"
-    yield Path(__file__).resolve().parent.parent / "msg_defs" / "msg"
+    yield Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 
 
 def msg_definition(name: str) -> str:

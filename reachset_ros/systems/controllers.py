@@ -178,18 +178,18 @@ def lqg(model, r, alpha_w, alpha_v, Q=None, form="predictor", squared=True):
     Parameters
     ----------
     model : LinearPlant
-        Design model (paper: 4-state robot model, :func:`~reachset_ros.plant.lwa4p_robot_model`).
+        Design model (paper: 4-state robot model, :func:`~reachset_ros.systems.plant.lwa4p_robot_model`).
     r : float
         Input weight.
     alpha_w, alpha_v : array_like
         Disturbance scalings; the Kalman covariances are
-        :func:`~reachset_ros.observers.paper_lqg_covariances`.
+        :func:`~reachset_ros.systems.observers.paper_lqg_covariances`.
     Q : array_like, optional
         State weight; default ``diag(1000, 1000, 0.01, r)`` as in the paper.
     form : {"predictor", "current"}
         Kalman estimate ``x[k|k-1]`` (MATLAB ``lqg`` default) or ``x[k|k]``.
     squared : bool
-        Passed to :func:`~reachset_ros.observers.paper_lqg_covariances`.
+        Passed to :func:`~reachset_ros.systems.observers.paper_lqg_covariances`.
 
     Returns
     -------

@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from . import robot as rb
-from .errors import ReachsetError
+from .. import robot as rb
+from ..errors import ReachsetError
 
 DT = 0.004
 RK4_STABILITY = 2.5  # |h * lambda| kept below this (RK4's real-axis limit is 2.785)

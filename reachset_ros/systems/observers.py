@@ -14,8 +14,8 @@ state-space form with direct feedthrough (as ``scipy.signal.cont2discrete(...,
 method="bilinear")``): the estimate ``x_hat[k]`` is the trapezoidal-rule solution at
 ``t = k dt`` and therefore depends on the *current* inputs ``y[k]`` (and ``u[k]``).
 When ``Do_u != 0`` (e.g. the ESO fed the current plant input) the estimate and the
-control law form an algebraic loop; :func:`reachset_ros.closedloop.close_loop` and
-:func:`reachset_ros.closedloop.closed_loop_tick` solve it exactly.
+control law form an algebraic loop; :func:`reachset_ros.systems.closedloop.close_loop` and
+:func:`reachset_ros.systems.closedloop.closed_loop_tick` solve it exactly.
 
 Pure numpy/scipy; no ROS import.
 """
@@ -155,7 +155,7 @@ class ObserverState:
         """Estimate without the plant-input feedthrough: ``Co xo + Do_y y``.
 
         The full estimate is ``partial_estimate(y) + Do_u u``; with ``Do_u != 0`` the
-        control law must solve for ``u`` (see :func:`reachset_ros.closedloop.closed_loop_tick`).
+        control law must solve for ``u`` (see :func:`reachset_ros.systems.closedloop.closed_loop_tick`).
         """
         return self.observer.Co @ self.x + self.observer.Do_y @ np.atleast_1d(np.asarray(y, float))
 
@@ -249,7 +249,7 @@ def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
       ESO rows of the paper's Table III to within 0.1 % (test/test_closedloop.py).
     * ``u_input="current"``: ``u = u_p[k]``. Then ``Do_u != 0`` and the compensated law
       ``u_p = ... - d_hat`` closes an algebraic loop, solved exactly by
-      :func:`reachset_ros.closedloop.close_loop` / :func:`~reachset_ros.closedloop.closed_loop_tick`.
+      :func:`reachset_ros.systems.closedloop.close_loop` / :func:`~reachset_ros.systems.closedloop.closed_loop_tick`.
       (Reproduces Table III axes 1-4 at ``eps = 0.01`` but gives 11-27 % larger sets for
       axes 5-6.)
 
@@ -287,7 +287,7 @@ def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
 
 
 def kalman_filter(model, Sw, Sv, form="predictor"):
-    """Steady-state Kalman filter for a :class:`~reachset_ros.plant.LinearPlant` model.
+    """Steady-state Kalman filter for a :class:`~reachset_ros.systems.plant.LinearPlant` model.
 
     The filter assumes ``x[k+1] = A x + B u + w``, ``y = C x + D u + v`` with
     ``cov(w) = Sw``, ``cov(v) = Sv``; the error covariance ``P`` solves the filter DARE

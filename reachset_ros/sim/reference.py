@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import robot as rb
-from .errors import ReachsetError
+from .. import robot as rb
+from ..errors import ReachsetError
 
 QUINTIC_VEL = 1.875                 # max s'(r)
 QUINTIC_ACC = 10.0 / np.sqrt(3.0)   # max |s''(r)|

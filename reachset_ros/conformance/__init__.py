@@ -5,7 +5,7 @@ every valid tick m of a recording, the deviation of the measurement from the nom
 prediction (eq. 12)
 
     y_a^(m)[k] = y[m+k] - y_*^(m)[k],   y_*^(m)[k] = C x_*^(m)[k] + D u[m+k],
-    x_*^(m)[0] = x0(m) (an :class:`~reachset_ros.estimators.Estimator`),
+    x_*^(m)[0] = x0(m) (an :class:`~reachset_ros.conformance.estimators.Estimator`),
     x_*^(m)[k+1] = A x_*^(m)[k] + B u[m+k],
 
 must lie in R_a[k] = (+)_{i<k} C A^i W (+) V (eq. 13). Theorem 1 writes this as
@@ -14,7 +14,7 @@ where the normals N_k come from the H-representation of R_a[k] built from the *u
 generators (they do not depend on alpha > 0).
 
 All arithmetic on the nominal trajectories uses the element-wise :func:`matvec`, so the
-batch sweep here and the online monitor (:mod:`reachset_ros.monitor`), which advances one
+batch sweep here and the online monitor (:mod:`reachset_ros.conformance.monitor`), which advances one
 tick at a time, produce bitwise identical deviations and hence identical verdicts.
 """
 from __future__ import annotations
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
-from . import kernel
-from .errors import InfeasibleError, ReachsetError
+from . import compiled
+from ..errors import InfeasibleError, ReachsetError
 
 
 # ------------------------------------------------------------------ deterministic kernels
@@ -160,7 +160,7 @@ def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
 
 def _sweep_block(plant, estimator, y, u, starts, rem, horizon, visit):
     X = estimator.estimate(plant, y, u, starts)
-    if kernel.LIB is not None and plant.A.shape[0] <= 64 and plant.B.shape[1] <= 64:
+    if compiled.LIB is not None and plant.A.shape[0] <= 64 and plant.B.shape[1] <= 64:
         return _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X)
     for k in range(horizon + 1):
         Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
@@ -184,8 +184,8 @@ def _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X):
     y, u, X = f8(y), f8(u), f8(X)
     starts, rem = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(rem, np.int64)
     ya = np.empty((K + 1, ny, M))
-    p = kernel.ptr
-    rc = kernel.LIB.reachset_sweep_block(p(A), p(B), p(C), p(D), int(bool(np.any(plant.D))), A.shape[0], B.shape[1],
+    p = compiled.ptr
+    rc = compiled.LIB.reachset_sweep_block(p(A), p(B), p(C), p(D), int(bool(np.any(plant.D))), A.shape[0], B.shape[1],
                                          ny, p(y), p(u), p(starts), p(rem), M, K, p(X), p(ya))
     if rc != 0:
         raise RuntimeError("reachset_sweep_block failed")
@@ -207,7 +207,7 @@ def output_normals(plant, horizon):
     ny = plant.C.shape[0]
     if ny == 1:
         return [np.ones((1, 1))] * (horizon + 1)
-    from .zonotope import halfspace_normals
+    from ..sets.zonotope import halfspace_normals
     out, E, blocks = [], np.eye(plant.A.shape[0]), []
     for k in range(horizon + 1):
         G = np.hstack(blocks + [plant.Gv]) if blocks else plant.Gv
@@ -586,7 +586,7 @@ def state_deviations(plant, estimator, y, u, segments):
 
 def _split_normals(G, tol=1e-10):
     """Facet normals of (0, G) inside span(G) and the orthonormal complement rows."""
-    from .zonotope import halfspace_normals
+    from ..sets.zonotope import halfspace_normals
     N = halfspace_normals(G)
     reach = np.abs(N @ G).sum(axis=1)
     inside = reach > tol * max(float(reach.max(initial=0.0)), 1e-300)
@@ -960,7 +960,7 @@ def detection_delay(plant, thm, estimator, xi, y, u, segments, horizon, accel, d
 def validation_grid(plant, thm, estimator, joint_sets, y, u, segments, horizon, grid):
     """Held-out violation rates of one joint for inflations 0 and ``grid`` (one sweep).
 
-    ``joint_sets`` is a :class:`~reachset_ros.model.JointSets`; inflation s checks with
+    ``joint_sets`` is a :class:`~reachset_ros.conformance.model.JointSets`; inflation s checks with
     ``joint_sets.xi(s)`` exactly as ``reachset check`` would with the model's inflation s.
     Returns (rows, chosen, flagged): a row per inflation, the smallest grid inflation with no
     held-out violation (or the largest grid value, ``flagged=True``).
