@@ -15,7 +15,7 @@ NODES = {
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
     "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
 }
-# The online monitor's tick (reachset_ros/conformance/compiled.py loads it with ctypes; numpy is the
+# The online monitor's tick (reachset_ros/conformance/kernels.py loads it with ctypes; numpy is the
 # fallback). No fused multiply-add: its results must equal numpy's bit for bit.
 TICK_KERNEL = Extension(f"{PACKAGE}.conformance._tick", [f"{PACKAGE}/conformance/_tick.c"],
                         extra_compile_args=["-std=c99", "-O3", "-ffp-contract=off", "-fno-fast-math"])

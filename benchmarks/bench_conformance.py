@@ -67,13 +67,13 @@ def baseline_read(path):
     """The reader before the fast path: rosbags AnyReader + deserialize_cdr per message."""
     from rosbags.highlevel import AnyReader
     ts = bags.typestore()
-    cols = {t: bags._TopicColumns() for t in (bags.JOINT_STATES, bags.PLANT_INPUT)}
+    cols = {t: bags.series._TopicColumns() for t in (bags.JOINT_STATES, bags.PLANT_INPUT)}
     with AnyReader([Path(path)], default_typestore=ts) as reader:
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             vals = msg.position if conn.topic == bags.JOINT_STATES else msg.acceleration
-            cols[conn.topic].add(bags._stamp_ns(msg), msg.name, vals)
+            cols[conn.topic].add(bags.header_stamp_ns(msg), msg.name, vals)
     return cols
 
 
@@ -190,7 +190,7 @@ def main(argv=None):
     per_joint = {}
     for name, s in series.items():
         t_sw, dev = timed(cf.deviation_extremes, plant, est, s.y, s.u, s.segments, HORIZON, thm)
-        t_lp, sets = timed(cf.identify, plant, thm, dev)
+        t_lp, sets = timed(cf.identify_sets, plant, thm, dev)
         t_st, _ = timed(cf.stable_horizon, plant, thm, dev)
         per_joint[name] = {"test_cases": dev.test_cases, "sweep_s": t_sw, "lp_s": t_lp, "stable_horizon_s": t_st,
                            "alpha_w": sets.alpha_w.tolist(), "alpha_v": sets.alpha_v.tolist(),

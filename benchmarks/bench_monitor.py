@@ -30,7 +30,7 @@ def main():
     thm = cf.Theorem1.build(p, K)
     joints = {}
     for j in range(J):
-        s = cf.identify(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, T),), K, thm))
+        s = cf.identify_sets(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, T),), K, thm))
         joints[f"j{j}"] = JointSets(tuple(s.alpha_w), tuple(s.alpha_v), tuple(s.c_w), tuple(s.c_v))
     model = ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator(), K, joints)
     mon = Monitor([MonitorModel.from_model(model, f"j{j}", thm) for j in range(J)])

@@ -3,7 +3,7 @@
 The target (issue 6): at most 30 s per joint on the 2-core machine, goal 10 s.
 
 On simulated bags generated once and cached under ``benchmarks/.cache/`` (one joint,
-:func:`reachset_ros.synthesis.simulate_recordings`, seed 1), with and without the
+:func:`reachset_ros.sim.recordings.simulate_recordings`, seed 1), with and without the
 ``/reference`` topic (with it, Appendix B method 3 runs inside the optimisation), this measures
 
 1. the wall time of ``reachset synthesize BAG --json`` in a fresh process (start-up, bag
@@ -32,6 +32,8 @@ from pathlib import Path
 
 
 from reachset_ros import synthesis as sy
+from reachset_ros.bags.references import read_references
+from reachset_ros.sim import recordings as sr
 from reachset_ros.bags import read_joint_series
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.systems.plant import lwa4p_joint_plant
@@ -67,8 +69,8 @@ def ensure_bag(reference):
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    recs = sy.simulate_recordings([JOINT], TICKS, seed=1)
-    sy.write_recordings(path, recs, reference=reference, estimate=reference)
+    recs = sr.simulate_recordings([JOINT], TICKS, seed=1)
+    sr.write_recordings(path, recs, reference=reference, estimate=reference)
     print(f"[bench_synthesis] generated {path} in {time.perf_counter() - t:.1f} s", file=sys.stderr, flush=True)
     return path
 
@@ -86,7 +88,7 @@ def in_process(bag, observer):
     out = {}
     t = time.perf_counter()
     series, _ = read_joint_series([bag], [JOINT])
-    refs = sy.read_references([bag], [JOINT])
+    refs = read_references([bag], [JOINT])
     out["read_s"] = time.perf_counter() - t
     plant = lwa4p_joint_plant()
     t = time.perf_counter()

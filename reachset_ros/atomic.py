@@ -3,6 +3,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import yaml
+
 from .errors import ReachsetError
 
 
@@ -14,7 +16,6 @@ def write_yaml(path, doc, header="", **dump_kwargs):
     to ``yaml.safe_dump`` (``sort_keys=False`` by default). An ``OSError`` (disk full, no
     permission) becomes a :class:`ReachsetError` naming ``path``.
     """
-    import yaml
     p = Path(path)
     dump_kwargs.setdefault("sort_keys", False)
     try:

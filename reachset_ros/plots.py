@@ -18,13 +18,21 @@ from pathlib import Path
 
 import numpy as np
 
+from .bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC, STATUS_TOPIC, header_stamp_ns
+from .bags.references import read_references
+from .bags.series import read_messages
+from .conformance import model as mdl
+from .conformance.theorem1 import xi_of
+from .synthesis.config import components_from_gains
+from .synthesis.reference_error import reference_error
+
 __all__ = ["plot_tracking_error", "plot_input", "plot_conformance", "plot_joint", "tracking_errors"]
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # heavy optional dependency: only the plots need it
     matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy optional dependency (after choosing the Agg backend)
     return plt
 
 
@@ -36,7 +44,7 @@ def _save(plt, fig, path):
 
 
 def _box(ax, center, radius, **kw):
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Rectangle  # heavy optional dependency: only the plots need it
     c, r = np.asarray(center, float), np.asarray(radius, float)
     ax.add_patch(Rectangle((c[0] - r[0], c[1] - r[1]), 2 * r[0], 2 * r[1], fill=False, **kw))
 
@@ -51,7 +59,7 @@ def tracking_errors(estimates, references):
     Parameters
     ----------
     estimates : (stamps, values (T, >= 2)) with q_hat, qd_hat columns
-    references : list of :class:`reachset_ros.synthesis.Reference`
+    references : list of :class:`reachset_ros.bags.references.Reference`
 
     Returns
     -------
@@ -141,7 +149,6 @@ def plot_input(path, result, u=None, dt=0.004, separate=None, title=None):
 
 def plot_conformance(path, problem, result, separate=None, title=None):
     """Theorem 1 per k: max/min of the deviations y_a[k] over all test cases vs. R_a[k]."""
-    from . import conformance as cf
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     K = len(problem.devs.maxp)
@@ -152,7 +159,7 @@ def plot_conformance(path, problem, result, separate=None, title=None):
     for res, col, ls, lab in ((result, "tab:blue", "-", result.mode), (separate, "tab:red", "--", "separate")):
         if res is None:
             continue
-        xi = cf.xi_of(res.c_w, res.c_v, res.alpha_w, res.alpha_v)
+        xi = xi_of(res.c_w, res.c_v, res.alpha_w, res.alpha_v)
         offs = problem.thm.offsets(xi)
         dp = np.array([o[0][0] for o in offs])
         dm = np.array([o[1][0] for o in offs])
@@ -185,31 +192,23 @@ def plot_joint(directory, problem, result, estimates=None):
 
 def _read_topics(bag, topics):
     """{topic: {stamp: msg}} of a bag (small demo bags only)."""
-    from rosbags.highlevel import AnyReader
-
-    from .bags import typestore
-    ts = typestore()
     out = {t: {} for t in topics}
-    with AnyReader([Path(bag)], default_typestore=ts) as reader:
-        conns = [c for c in reader.connections if c.topic in out]
-        for c, _t, raw in reader.messages(connections=conns):
-            m = ts.deserialize_cdr(raw, c.msgtype)
-            out[c.topic][m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec] = m
+    for topic, _t, m in read_messages([bag], topics):
+        out[topic][header_stamp_ns(m)] = m
     return out
 
 
-def run_tracking_set(model, joint, references, margin):
+def run_tracking_set(model, joint, references, inflation):
     """The tracking-error box that the monitor's model guarantees for the references of a run.
 
     Paper Appendix B (method 3) applied to the references actually run, not to the training
     ones: ``R*_e = Y_e,ref (+) R_e``, where ``Y_e,ref`` is the nominal loop's reference error
-    for ``references`` (:func:`reachset_ros.synthesis.reference_error`, exact on every tick)
-    and ``R_e`` the disturbance part of the synthesis, scaled by ``1 + margin`` (with zero
+    for ``references`` (:func:`reachset_ros.synthesis.reference_error.reference_error`, exact on every
+    tick) and ``R_e`` the disturbance part of the synthesis, scaled by ``1 + inflation`` (with zero
     centers R_e is linear in alpha, and the monitor accepts data conformant to the inflated
     sets). Returns (center, radius) of the interval hull (position, velocity), or None when
     the model has no gains for the joint.
     """
-    from . import synthesis as syn_mod
     js = model.joints.get(joint)
     g = dict(js.gains) if js is not None else {}
     if not g or "re_radius" not in g:
@@ -218,23 +217,23 @@ def run_tracking_set(model, joint, references, margin):
     r_total = np.asarray(g["re_radius"][:2], float)
     half_old = (np.array([b - a for a, b in ref_old[:2]]) / 2.0) if ref_old else np.zeros(2)
     r_dist = np.maximum(r_total - half_old, 0.0)
-    obs, ctrl = syn_mod.components_from_gains(g, model.plant.dt)
-    ref = syn_mod.reference_error(model.plant, obs, ctrl, references)
+    obs, ctrl = components_from_gains(g, model.plant.dt)
+    ref = reference_error(model.plant, obs, ctrl, references)
     lo, hi = np.asarray(ref.e_lo[:2], float), np.asarray(ref.e_hi[:2], float)
-    return 0.5 * (lo + hi), (1.0 + margin) * r_dist + 0.5 * (hi - lo)
+    return 0.5 * (lo + hi), (1.0 + inflation) * r_dist + 0.5 * (hi - lo)
 
 
-def demo_tracking(data, syn, until, model=None, references=None, margin=0.0):
+def demo_tracking(data, syn, until, model=None, references=None, inflation=0.0):
     """Measured tracking errors of the demo's monitored run (before ``until``) against R_e.
 
     The error is the observer's estimate minus the reference (position, velocity), as the
     controller sees it. Two boxes: the synthesis' ``R*_e`` (training references, the sets as
     identified; centered at zero as reported) and, when ``model`` and ``references`` are
-    given, :func:`run_tracking_set` (the references of this run, the monitor's margin).
+    given, :func:`run_tracking_set` (the references of this run, the sets inflated as the monitor's).
     Returns {joint: {"max_abs_error", "re_radius", "share_inside", "ticks", and with a model
     "run_center", "run_radius", "share_inside_run"}} and the per-joint error arrays.
     """
-    est, ref = data["/observer/estimate"], data["/reference"]
+    est, ref = data[ESTIMATE_TOPIC], data[REFERENCE_TOPIC]
     stamps = sorted(s for s in est if s in ref and s < until)
     stats, errors = {}, {}
     if not stamps:
@@ -249,7 +248,7 @@ def demo_tracking(data, syn, until, model=None, references=None, margin=0.0):
         st = {"max_abs_error": np.abs(e).max(axis=0).tolist(), "re_radius": r,
               "share_inside": float(inside.mean()), "ticks": len(stamps)}
         if model is not None and references is not None and references.get(name):
-            box = run_tracking_set(model, name, references[name], margin)
+            box = run_tracking_set(model, name, references[name], inflation)
             if box is not None:
                 c, rr = box
                 st.update(run_center=c.tolist(), run_radius=rr.tolist(),
@@ -267,21 +266,21 @@ def demo_plots(res, record, workdir):
     plt = _plt()
     outdir = Path(workdir) / "plots"
     outdir.mkdir(parents=True, exist_ok=True)
-    data = _read_topics(record, ["/observer/estimate", "/reference", "/conformance/status"])
-    status = data["/conformance/status"]
+    data = _read_topics(record, [ESTIMATE_TOPIC, REFERENCE_TOPIC, STATUS_TOPIC])
+    status = data[STATUS_TOPIC]
     fault = res.get("fault_injected_ns")
     stop = res.get("safe_stop_ns")
     until = min(x for x in (fault, stop, float("inf")) if x is not None)
     syn = (res.get("reidentify") or res.get("synthesis") or {}).get("joints", {})
     model, refs = None, None
     if res.get("monitor_model"):
-        from .conformance import model as mdl
-        from .synthesis import read_references
         model = mdl.load(res["monitor_model"])
         refs = {n: [r.slice(0, int(np.searchsorted(r.stamps, until))) for r in rs
                     if len(r) and r.stamps[0] < until]
                 for n, rs in read_references([record]).items()}
-    stats, errors = demo_tracking(data, syn, until, model, refs, float(res.get("margin") or 0.0))
+    # "margin": the deprecated name of "inflation" in results of older versions
+    inflation = res.get("inflation", res.get("margin"))
+    stats, errors = demo_tracking(data, syn, until, model, refs, float(inflation or 0.0))
     paths = []
     names = list(errors)
     if names:
@@ -295,7 +294,7 @@ def demo_plots(res, record, workdir):
             title = f"{name}: {st['share_inside']:.1%} in R*_e"
             if "run_radius" in st:
                 _box(ax, st["run_center"], st["run_radius"], edgecolor="tab:green", linewidth=2,
-                     label="R*_e of this run (its references, monitor margin)")
+                     label="R*_e of this run (its references, the monitor's inflation)")
                 ext = np.maximum(ext, np.abs(st["run_center"]) + np.array(st["run_radius"]))
                 title += f", {st['share_inside_run']:.1%} in this run's"
             ax.plot(e[:, 0], e[:, 1], ".", ms=1, color="tab:red", label="measured (estimate - reference)")

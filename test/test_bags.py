@@ -119,13 +119,13 @@ def test_decoder_groups_only_identical_layouts():
 # ------------------------------------------------------------------ bag reader == rosbags reader
 def reference_columns(path, topics=(bags.JOINT_STATES, bags.PLANT_INPUT)):
     """The reader before the fast path: rosbags' AnyReader and deserialize_cdr, message by message."""
-    cols = {t: bags._TopicColumns() for t in topics}
+    cols = {t: bags.series._TopicColumns() for t in topics}
     with AnyReader([Path(path)], default_typestore=TS) as reader:
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = TS.deserialize_cdr(raw, conn.msgtype)
             vals = msg.position if conn.topic == bags.JOINT_STATES else msg.acceleration
-            cols[conn.topic].add(bags._stamp_ns(msg), msg.name, vals)
+            cols[conn.topic].add(bags.header_stamp_ns(msg), msg.name, vals)
     return cols
 
 
@@ -208,12 +208,12 @@ def write_mcap_lib(path, stream, compression, index):
 def rosbags_reads(monkeypatch):
     """Counts bags read message by message through rosbags (not by the MCAP fast path)."""
     calls = []
-    real = bags._read_rosbags
+    real = bags.series._read_rosbags
 
     def spy(*a, **kw):
         calls.append(a)
         return real(*a, **kw)
-    monkeypatch.setattr(bags, "_read_rosbags", spy)
+    monkeypatch.setattr(bags.series, "_read_rosbags", spy)
     return calls
 
 
@@ -283,6 +283,75 @@ def test_bag_writer_names_storage_file_after_the_bag(tmp_path):
         w.write(bags.JOINT_STATES, bags.joint_state(T0, ["a"], [0.0]), T0)
     assert sorted(p.name for p in (tmp_path / "run1").iterdir()) == ["metadata.yaml", "run1.mcap"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run1"]
+
+
+def monitored_bag(path, t0, n, storage="mcap"):
+    """A bag as the demo records it: /joint_states, /conformance/status, /safe_stop, /sim/fault_onset."""
+    CS, SS = TS.types[bags.STATUS_TYPE], TS.types[bags.SAFE_STOP_TYPE]
+    with bags.BagWriter(path, storage=storage) as w:
+        for i in range(n):
+            t = t0 + DT_NS * i
+            w.write(bags.JOINT_STATES, bags.joint_state(t, ["a", "b"], [i, -i]), t + 1)
+            w.write(bags.STATUS_TOPIC, CS(header=bags.header(t), conformant=i < n - 2, safe_stop_active=False, tick=i,
+                                          horizon=3, active_test_cases=1, name=["a", "b"], margin=np.array([0.5, i]),
+                                          deviation=np.zeros(2), tightest_step=np.zeros(2, np.int32),
+                                          check_duration=0.0, model_id="m"), t + 2, bags.STATUS_TYPE)
+        w.write(bags.FAULT_ONSET_TOPIC, bags.header(t0 + DT_NS), t0 + DT_NS + 3, bags.FAULT_ONSET_TYPE)
+        w.write(bags.SAFE_STOP_TOPIC, SS(header=bags.header(t), active=True, reason="why", kind="violation", joint="a",
+                                         step=2, test_case_start_ns=t0, deviation=1.0, bound=0.5, window_bag=""),
+                t + 4, bags.SAFE_STOP_TYPE)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_read_messages_decodes_the_topics_in_log_time_order(tmp_path, storage):
+    monitored_bag(tmp_path / "b", T0, 5, storage)
+    topics = (bags.STATUS_TOPIC, bags.SAFE_STOP_TOPIC, bags.FAULT_ONSET_TOPIC)
+    got = list(bags.read_messages([tmp_path / "b"], topics))
+    assert [(topic, t) for topic, t, _ in got] == sorted(
+        [(bags.STATUS_TOPIC, T0 + DT_NS * i + 2) for i in range(5)] + [(bags.FAULT_ONSET_TOPIC, T0 + DT_NS + 3),
+                                                                      (bags.SAFE_STOP_TOPIC, T0 + DT_NS * 4 + 4)],
+        key=lambda x: x[1])
+    status = [m for topic, _, m in got if topic == bags.STATUS_TOPIC]
+    assert [bags.header_stamp_ns(m) for m in status] == [T0 + DT_NS * i for i in range(5)]
+    assert [bool(m.conformant) for m in status] == [True, True, True, False, False]
+    assert [m.margin.tolist() for m in status] == [[0.5, float(i)] for i in range(5)] and status[2].tick == 2
+    (stop,) = [m for topic, _, m in got if topic == bags.SAFE_STOP_TOPIC]
+    assert (stop.active, stop.reason, stop.kind, stop.joint, stop.step) == (True, "why", "violation", "a", 2)
+    (onset,) = [m for topic, _, m in got if topic == bags.FAULT_ONSET_TOPIC]
+    assert onset.stamp.sec * 1_000_000_000 + onset.stamp.nanosec == T0 + DT_NS
+    # all topics (None), and two bags merged by log time
+    monitored_bag(tmp_path / "c", T0 + DT_NS // 2, 3, storage)
+    both = list(bags.read_messages([tmp_path / "b", tmp_path / "c"]))
+    assert len(both) == 2 * 5 + 2 + 2 * 3 + 2
+    assert [t for _, t, _ in both] == sorted(t for _, t, _ in both)
+    js = [m for topic, _, m in both if topic == bags.JOINT_STATES]
+    assert [list(m.name) for m in js] == [["a", "b"]] * 8 and js[1].position.tolist() == [0.0, 0.0]
+    assert list(bags.read_messages([tmp_path / "b"], ["/reference"])) == []
+
+
+def test_read_references_and_estimates_through_the_reader(tmp_path):
+    """Rows per joint sorted by stamp, duplicate stamps dropped (first kept), NaN for short
+    arrays, None without the topic, a damaged bag named."""
+    JR = TS.types[bags.REFERENCE_TYPE]
+    path = tmp_path / "r"
+    with bags.BagWriter(path) as w:
+        for i, k in enumerate([0, 1, 3, 2, 2, 4]):         # out of order, stamp 2 twice
+            t = T0 + DT_NS * k
+            w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=["a", "b"], position=np.array([k, i + 0.5]),
+                                             velocity=np.array([10.0 * k]), acceleration=np.array([i, -i], float)),
+                    T0 + i, bags.REFERENCE_TYPE)
+    rows = bags.read_topic_rows([path], bags.REFERENCE_TOPIC, ("position", "velocity", "acceleration"))
+    st, v = rows["a"]
+    assert st.tolist() == [T0 + DT_NS * k for k in range(5)]
+    assert v.tolist() == [[0, 0, 0], [1, 10, 1], [2, 20, 3], [3, 30, 2], [4, 40, 5]]
+    assert np.isnan(rows["b"][1][:, 1]).all() and rows["b"][1][:, 0].tolist() == [0.5, 1.5, 3.5, 2.5, 5.5]
+    assert bags.read_references([path], ["b"]) == {}       # NaN velocities: no valid stretch
+    (ref,) = bags.read_references([path])["a"]
+    assert ref.q.tolist() == [0, 1, 2, 3, 4] and ref.qdd.tolist() == [0, 1, 3, 2, 5]
+    assert bags.read_estimates([path]) is None
+    (path / "r.mcap").write_bytes((path / "r.mcap").read_bytes()[:100])
+    with pytest.raises(ReachsetError, match=r"r: cannot read /reference \("):
+        bags.read_references([path])
 
 
 def test_damaged_payload_names_bag_file_and_topic(tmp_path):

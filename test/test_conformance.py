@@ -40,7 +40,7 @@ def lwa_data():
 def identified_model(p, y, u, segs, K=60, est=Estimator("fd")):
     thm = cf.Theorem1.build(p, K)
     dev = cf.deviation_extremes(p, est, y, u, segs, K, thm)
-    sets = cf.identify(p, thm, dev)
+    sets = cf.identify_sets(p, thm, dev)
     return thm, dev, sets
 
 
@@ -145,7 +145,7 @@ def test_multidimensional_output_plant():
     thm = cf.Theorem1.build(p, K)
     assert thm.normals[3].shape[1] == 2 and thm.normals[3].shape[0] >= 3
     dev = cf.deviation_extremes(p, est, y, u, ((0, T),), K, thm)
-    sets = cf.identify(p, thm, dev)
+    sets = cf.identify_sets(p, thm, dev)
     assert cf.check(p, thm, est, sets.xi, y, u, ((0, T),), K).violations == 0
     small = cf.xi_of(sets.c_w, sets.c_v, 0.8 * sets.alpha_w, 0.8 * sets.alpha_v)
     ref = cf.check(p, thm, est, small, y, u, ((0, T),), K)
@@ -163,10 +163,10 @@ def test_corollary_free_centers_and_lower_bounds(lwa_data):
     K = 40
     thm = cf.Theorem1.build(p, K)
     dev = cf.deviation_extremes(p, Estimator("fd"), y, u, ((0, 6000),), K, thm)
-    zero = cf.identify(p, thm, dev)
-    free = cf.identify(p, thm, dev, centers="free")
+    zero = cf.identify_sets(p, thm, dev)
+    free = cf.identify_sets(p, thm, dev, centers="free")
     assert free.cost <= zero.cost + 1e-12
-    lb = cf.identify(p, thm, dev, alpha_lower=[0.0, 0.5, 1e-3])
+    lb = cf.identify_sets(p, thm, dev, alpha_lower=[0.0, 0.5, 1e-3])
     assert lb.alpha_w[1] >= 0.5 and lb.alpha_v[0] >= 1e-3
     for s in (free, lb):
         assert cf.check(p, thm, Estimator("fd"), s.xi, y, u, ((0, 6000),), K).violations == 0

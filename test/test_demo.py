@@ -17,22 +17,17 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rosbags.highlevel import AnyReader
 
-from reachset_ros.bags import typestore
+from reachset_ros.bags import read_messages
 from reachset_ros.commands.demo import rate_hz
 
 
 def read_status_and_stops(record):
     """``[(stamp_ns, msg, log_time_ns)]`` of /conformance/status and of /safe_stop."""
-    ts = typestore()
     status, stops = [], []
-    with AnyReader([Path(record)], default_typestore=ts) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop")]
-        for c, t, raw in reader.messages(connections=conns):
-            m = ts.deserialize_cdr(raw, c.msgtype)
-            st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-            (status if c.topic == "/conformance/status" else stops).append((st, m, t))
+    for topic, t, m in read_messages([record], ("/conformance/status", "/safe_stop")):
+        st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        (status if topic == "/conformance/status" else stops).append((st, m, t))
     return status, stops
 
 

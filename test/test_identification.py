@@ -1,4 +1,4 @@
-"""Identification beyond the default LP: Corollary 1, quadratic cost, held-out margin calibration."""
+"""Identification beyond the default LP: Corollary 1, quadratic cost, held-out inflation calibration."""
 import json
 
 import numpy as np
@@ -35,7 +35,7 @@ def both(p, est, y, u, K):
     segs = ((0, len(y)),)
     thm = cf.Theorem1.build(p, K)
     dev = cf.deviation_extremes(p, est, y, u, segs, K, thm)
-    return thm, dev, cf.identify(p, thm, dev), cf.identify_corollary1(p, est, y, u, segs, horizon=K)
+    return thm, dev, cf.identify_sets(p, thm, dev), cf.identify_corollary1(p, est, y, u, segs, horizon=K)
 
 
 # ------------------------------------------------------------------ Corollary 1
@@ -118,7 +118,7 @@ def lwa():
 def test_quadratic_cost_is_sound_and_differs_from_linear(lwa):
     p, y, u, K, thm, dev = lwa
     est, segs = Estimator("fd"), ((0, 3000),)
-    lin = cf.identify(p, thm, dev)
+    lin = cf.identify_sets(p, thm, dev)
     quad = cf.identify_quadratic(p, thm, dev)
     r = cf.check(p, thm, est, quad.xi, y, u, segs, K)
     assert r.violations == 0 and r.worst_margin >= 0.0
@@ -148,7 +148,7 @@ def test_quadratic_cost_multidimensional_output():
 # ------------------------------------------------------------------ held-out validation
 def test_check_many_equals_check(lwa):
     p, y, u, K, thm, dev = lwa
-    s = cf.identify(p, thm, dev)
+    s = cf.identify_sets(p, thm, dev)
     yf = cf.inject_acceleration_fault(y, ((0, 3000),), 2000, 5.0, p.dt)
     segs = ((0, 1200), (1201, 3000))
     xis = [cf.xi_of(s.c_w, s.c_v, f * s.alpha_w, f * s.alpha_v) for f in (1.0, 0.7, 0.3)]
@@ -173,7 +173,7 @@ def test_validation_picks_inflation_and_detects_fault(held_out):
     p, yt, ut, yv, uv = held_out
     est, K = Estimator("fd"), 50
     thm = cf.Theorem1.build(p, K)
-    s = cf.identify(p, thm, cf.deviation_extremes(p, est, yt, ut, ((0, 1500),), K, thm))
+    s = cf.identify_sets(p, thm, cf.deviation_extremes(p, est, yt, ut, ((0, 1500),), K, thm))
     js = mdl.JointSets(tuple(s.alpha_w), tuple(s.alpha_v), tuple(s.c_w), tuple(s.c_v))
     segs = ((0, 3000),)
     grid = [0.05, 0.1, 0.2, 0.5, 1.0]

@@ -7,6 +7,7 @@ import pytest
 
 from reachset_ros import cli
 from reachset_ros.robot import input_limits as il
+from reachset_ros.robot import interval as iv
 from reachset_ros import robot as rb
 from reachset_ros.errors import InfeasibleError
 
@@ -26,12 +27,12 @@ def test_interval_rnea_is_exact_on_points_and_encloses_boxes(model):
     rng = np.random.default_rng(0)
     for _ in range(5):
         q, qd, qdd = rng.uniform(-2, 2, 6), rng.uniform(-1, 1, 6), rng.uniform(-3, 3, 6)
-        lo, hi = il.interval_rnea(model, q[None], q[None], qd, qd, qdd)
+        lo, hi = iv.interval_rnea(model, q[None], q[None], qd, qd, qdd)
         ref = pin.rnea(model.pin_model, data, q, qd, qdd)
         assert np.all(lo[0] <= ref) and np.all(ref <= hi[0]) and np.max(hi - lo) < 1e-9
     # a batch of boxes of 0.3 rad, velocities in [-0.7, 0.7]: every sample inside
     c = rng.uniform(-2, 2, (8, 6))
-    lo, hi = il.interval_rnea(model, c - 0.15, c + 0.15, -0.7, 0.7, np.array([1.0, -2, 0.5, 0, 3, -1]))
+    lo, hi = iv.interval_rnea(model, c - 0.15, c + 0.15, -0.7, 0.7, np.array([1.0, -2, 0.5, 0, 3, -1]))
     for b in range(8):
         for _ in range(50):
             q = c[b] + rng.uniform(-0.15, 0.15, 6)

@@ -4,7 +4,6 @@ import shutil
 import numpy as np
 import pytest
 import yaml
-from rosbags.rosbag2 import Reader
 
 from reachset_ros import bags
 
@@ -52,12 +51,9 @@ def test_recordings_lie_within_the_urdf_limits(lwa4p_dir):
 
 
 def _read_bag(path):
-    ts = bags.typestore()
     out = {bags.JOINT_STATES: [], bags.PLANT_INPUT: []}
-    with Reader(path) as reader:
-        for conn, t, raw in reader.messages():
-            msg = ts.deserialize_cdr(raw, conn.msgtype)
-            out[conn.topic].append((t, msg))
+    for topic, t, msg in bags.read_messages([path]):
+        out[topic].append((t, msg))
     return out
 
 

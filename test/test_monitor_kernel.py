@@ -1,18 +1,19 @@
-"""The compiled monitor tick (reachset_ros/_tick.c) equals the numpy tick bit for bit."""
+"""The compiled monitor tick (reachset_ros/conformance/_tick.c) equals the numpy tick bit for bit;
+so does JointMonitor's tick for one-dimensional outputs."""
 import numpy as np
 import pytest
 
 from reachset_ros import conformance as cf
-from reachset_ros.conformance import monitor as mon_mod
+from reachset_ros.conformance import kernels
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.conformance.model import ConformanceModel, JointSets
-from reachset_ros.conformance.monitor import Monitor, MonitorModel
+from reachset_ros.conformance.monitor import JointMonitor, Monitor, MonitorModel
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000
 
-needs_kernel = pytest.mark.skipif(mon_mod.KERNEL_PATH is None, reason="compiled kernel not built")
+needs_kernel = pytest.mark.skipif(kernels.LIB_PATH is None, reason="compiled kernel not built")
 
 
 def closed_loop(p, T, J, seed):
@@ -29,7 +30,7 @@ def model_for(p, Y, U, K, scale=1.0):
     thm = cf.Theorem1.build(p, K)
     joints = {}
     for j in range(Y.shape[1]):
-        s = cf.identify(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, len(Y)),), K, thm))
+        s = cf.identify_sets(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, len(Y)),), K, thm))
         joints[f"j{j}"] = JointSets(tuple(scale * s.alpha_w), tuple(scale * s.alpha_v), tuple(s.c_w), tuple(s.c_v))
     return ConformanceModel(p, {"kind": "lwa4p_joint", "dt": p.dt}, Estimator(), K, joints), thm
 
@@ -103,6 +104,31 @@ def test_kernel_verdicts_equal_the_batch_check():
     assert viol[0] > 0
 
 
+@pytest.mark.parametrize("plant_kind", ["lwa4p", "with_feedthrough"])
+def test_joint_monitor_equals_numpy_tick(plant_kind):
+    """JointMonitor (one joint, any output dimension) and Monitor's numpy tick, for ny = 1 on the
+    messy stream: the same status, margin and reported check, bit for bit (Monitor's module
+    docstring says why there are two)."""
+    p = lwa4p_joint_plant()
+    if plant_kind == "with_feedthrough":
+        p = LinearPlant(p.A, p.B, p.C, np.array([[0.25 * p.dt ** 2]]), p.Gw, p.Gv, p.dt)
+    Y, U = closed_loop(p, 2200, 3, seed=1)
+    model, thm = model_for(p, Y[:1000], U[:1000], K=40, scale=1.02)
+    mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(3)]
+    mon, jms = Monitor(mms, kernel=False), [JointMonitor(m) for m in mms]
+    stamps, Ys, Us = messy_stream(Y, U, seed=2)
+    seen = set()
+    for t in range(len(stamps)):
+        r = mon.tick(int(stamps[t]), Ys[t], Us[t])
+        for j, jm in enumerate(jms):
+            q = jm.tick(int(stamps[t]), Ys[t, j], Us[t, j])
+            assert q.status == r["status"][j], (t, j)
+            seen.add(q.status)
+            for key in ("margin", "checked", "step", "start_tick", "deviation", "bound"):
+                assert np.float64(getattr(q, key)).tobytes() == np.float64(r[key][j]).tobytes(), (t, j, key)
+    assert seen == {"ok", "violation", "invalid", "gap_reset"}
+
+
 def test_numpy_fallback_when_the_kernel_does_not_apply():
     """A plant the kernel does not cover (two states) runs the numpy tick; kernel=True refuses it."""
     A = np.array([[1.0, 0.004], [0.0, 1.0]])
@@ -128,7 +154,6 @@ def _collect(plant, y, u, segments, horizon, block):
 @needs_kernel
 @pytest.mark.parametrize("plant_kind", ["lwa4p", "two_outputs_with_feedthrough"])
 def test_compiled_sweep_equals_numpy_sweep_bit_for_bit(plant_kind, monkeypatch):
-    from reachset_ros.conformance import compiled as kernel
     p = lwa4p_joint_plant()
     Y, U = closed_loop(p, 1500, 1, seed=5)
     if plant_kind == "two_outputs_with_feedthrough":
@@ -137,7 +162,7 @@ def test_compiled_sweep_equals_numpy_sweep_bit_for_bit(plant_kind, monkeypatch):
         Y = np.hstack([Y, np.cumsum(Y, axis=0) * 1e-3])
     segments = ((0, 40), (41, 700), (703, 1500))      # one segment shorter than the horizon
     compiled = _collect(p, Y, U, segments, 60, block=128)
-    monkeypatch.setattr(kernel, "LIB", None)
+    monkeypatch.setattr(kernels, "LIB", None)
     reference = _collect(p, Y, U, segments, 60, block=16384)
     assert len(compiled) > len(reference)          # different blocking, same per-k content
     by_k = {}

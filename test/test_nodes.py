@@ -10,13 +10,14 @@ from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, 
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from helpers import JOINTS, Recorder, plant_stream, write_model
+from reachset_ros import conformance as cf
 from reachset_ros import launch
+from reachset_ros.bags import read_messages
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.nodes.common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, to_stamp
 from reachset_ros.systems.plant import lwa4p_joint_plant
-
-JOINTS = ["arm_1_joint", "arm_2_joint"]
 
 
 def spin_until(node, cond, timeout):
@@ -28,15 +29,8 @@ def spin_until(node, cond, timeout):
     return False
 
 
-def write_model(path, alpha_w=(0.05, 4.0), alpha_v=(1e-4,), horizon=25):
-    p = lwa4p_joint_plant()
-    js = {j: mdl.JointSets(tuple(alpha_w), tuple(alpha_v), (0.0,) * 5, (0.0,), 0, horizon) for j in JOINTS}
-    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), path)
-    return path
-
-
 def test_controller_gains_through_parameter_service(ros, tmp_path):
-    model = write_model(tmp_path / "m.yaml")
+    model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
     ctl = launch.start("controller_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
                                            "omega": [10.0], "zeta": [1.0]}, tmp_path)
     got = []
@@ -147,33 +141,16 @@ def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
         launch.stop([ctl])
 
 
-def plant_stream(n, seed=0, fault_from=None):
-    """Data that follow the per-joint plant (small bounded disturbances), two joints."""
-    p = lwa4p_joint_plant()
-    rng = np.random.default_rng(seed)
-    X = np.zeros((2, 5))
-    for k in range(n):
-        y = X[:, 0] + 2e-5 * rng.uniform(-1, 1, 2)
-        u = np.sin(0.01 * k + np.arange(2)) - 50 * X[:, 1] - 10 * X[:, 2]
-        yield k, y, u
-        a = 0.0 if fault_from is None or k < fault_from else 20.0
-        for j in range(2):
-            X[j] = p.A @ X[j] + p.B[:, 0] * u[j] + p.Gw @ (np.array([0.01, 1.0]) * rng.uniform(-1, 1, 2))
-            X[j, 2] += 0.004 * a
-            X[j, 1] += 0.5 * 0.004 ** 2 * a
-
-
 def identified_model(path, horizon=25):
-    """A model identified (Theorem 1) on a clean stream, sets doubled for margin."""
-    from reachset_ros import conformance as cf
+    """A model identified (Theorem 1) on a clean stream, sets doubled (an inflation of 1 built in)."""
     p = lwa4p_joint_plant()
     data = list(plant_stream(3000, seed=11))
     Y = np.array([d[1] for d in data])
     U = np.array([d[2] for d in data])
     thm = cf.Theorem1.build(p, horizon)
     devs = [cf.deviation_extremes(p, Estimator("fd"), Y[:, j], U[:, j], ((0, 3000),), horizon, thm) for j in range(2)]
-    sets = cf.identify(p, thm, cf.combine(devs))
-    return write_model(path, tuple(2 * sets.alpha_w), tuple(2 * sets.alpha_v), horizon)
+    sets = cf.identify_sets(p, thm, cf.combine(devs))
+    return write_model(path, tuple(2 * sets.alpha_w), tuple(2 * sets.alpha_v), horizon=horizon)
 
 
 def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
@@ -261,36 +238,6 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
 ALL_JOINTS = [f"arm_{i}_joint" for i in range(1, 7)]
 INITIAL_GAINS = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0], "h1": [15.0],
                  "h2": [30.0], "eps": [0.01]}
-
-
-class Recorder:
-    """Subscriptions spun by their own executor thread (nothing missed while the test waits)."""
-
-    def __init__(self, name, topics):
-        import threading
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import QoSProfile
-        self.node = Node(name)
-        self.msgs = {t: [] for t in topics}
-        for topic, cls in topics.items():
-            qos = SAFE_STOP_QOS if cls is SafeStop else QoSProfile(depth=5000)
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self.msgs[t].append((time.monotonic(), m)),
-                                          qos)
-        self.ex = SingleThreadedExecutor()
-        self.ex.add_node(self.node)
-        threading.Thread(target=self.ex.spin, daemon=True).start()
-
-    def wait(self, cond, timeout):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if cond():
-                return True
-            time.sleep(0.02)
-        return cond()
-
-    def close(self):
-        self.ex.shutdown()
-        self.node.destroy_node()
 
 
 def _ns(m):
@@ -413,9 +360,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     import json
     import subprocess
     import sys
-    from rosbags.highlevel import AnyReader
     from std_msgs.msg import Header
-    from reachset_ros.bags import typestore
     from reachset_ros.nodes.demo_driver import MONITOR_TOPICS
     p = lwa4p_joint_plant()
     horizon = 125
@@ -457,20 +402,16 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     chk = json.loads(out.stdout)
     first_check = min((j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"]),
                       default=None)
-    ts = typestore()
     verdicts, stops, onset = [], [], None
-    with AnyReader([bag], default_typestore=ts) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop", "/sim/fault_onset")]
-        for c, _t, raw in reader.messages(connections=conns):
-            m = ts.deserialize_cdr(raw, c.msgtype)
-            h = m if c.topic == "/sim/fault_onset" else m.header
-            st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
-            if c.topic == "/conformance/status":
-                verdicts.append((st, bool(m.conformant)))
-            elif c.topic == "/safe_stop":
-                stops.append((st, bool(m.active), m.kind))
-            else:
-                onset = st
+    for topic, _t, m in read_messages([bag], ("/conformance/status", "/safe_stop", "/sim/fault_onset")):
+        h = m if topic == "/sim/fault_onset" else m.header
+        st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+        if topic == "/conformance/status":
+            verdicts.append((st, bool(m.conformant)))
+        elif topic == "/safe_stop":
+            stops.append((st, bool(m.active), m.kind))
+        else:
+            onset = st
     first_monitor = min((s for s, ok in verdicts if not ok), default=None)
     active = sorted(s for s, a, _ in stops if a)
     print(f"fault onset {onset}, first violation: monitor {first_monitor}, check {first_check}, "
@@ -553,8 +494,6 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     latched /safe_stop) with the first clock's time, never 0. The simulation runs at about
     a tenth of real time here (each tick waits 40 ms for a command nobody sends), so
     wall-clock log times would be ten times as far apart as the stamps."""
-    from rosbags.highlevel import AnyReader
-    from reachset_ros.bags import typestore
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="latched before the simulation"))
     bag = tmp_path / "simtime"
@@ -579,12 +518,9 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     finally:
         launch.stop([rec] + ([sim] if sim else []))
         ros.destroy_publisher(stop_pub)
-    ts = typestore()
     js, stops = [], []
-    with AnyReader([bag], default_typestore=ts) as reader:
-        for c, t, raw in reader.messages():
-            m = ts.deserialize_cdr(raw, c.msgtype)
-            (js if c.topic == "/joint_states" else stops).append((_ns(m), t))
+    for topic, t, m in read_messages([bag]):
+        (js if topic == "/joint_states" else stops).append((_ns(m), t))
     js.sort()
     # (the recorder may discover the simulator a little later than this test does)
     assert len(stops) == 1 and len(js) >= 30, (len(stops), len(js), len(got), _ns(got[0]), _ns(got[-1]),

@@ -9,38 +9,24 @@ Stamps increase across the whole module (:func:`stamps`): a monitor hearing an o
 test's late message must never see a stamp going backwards by accident.
 """
 import math
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.srv import GetParameters
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
-from sensor_msgs.msg import JointState
-from std_srvs.srv import Trigger
+from reachset_msgs.msg import JointEstimate, JointReference, SafeStop
 
+from helpers import HORIZON, JOINTS, Bus, stream, write_model
 from reachset_ros import launch
 from reachset_ros.conformance import model as mdl
+from reachset_ros.conformance.monitor import FaultEvent, TickEvent
 from reachset_ros.errors import ReachsetError
-from reachset_ros.conformance.estimators import Estimator
-from reachset_ros.nodes.common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns, to_stamp
+from reachset_ros.nodes.common import SAFE_STOP_QOS, stamp_ns, to_stamp
 from reachset_ros.nodes.monitor_node import MonitorCore
-from reachset_ros.systems.plant import lwa4p_joint_plant
 
-JOINTS = ["arm_1_joint", "arm_2_joint"]
 DT_NS = 4_000_000
-HORIZON = 25
-#: sets about 4x those identified on :func:`stream` (0.035 / 1.4e-4): no false alarm on it
-#: (15,000 ticks, 5 seeds, smallest margin 2.5e-4 rad), a 0.01 rad jump is caught at once
-ALPHA_W, ALPHA_V = (0.15, 0.0), (4e-4,)
-#: deep publishers, so that the test itself never drops what it sends
-PUB_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 _next = [10**18]
 
 
@@ -49,28 +35,6 @@ def stamps(n):
     t0 = _next[0]
     _next[0] += (n + 10_000) * DT_NS
     return [t0 + k * DT_NS for k in range(n)]
-
-
-def write_model(path, alpha_w=ALPHA_W, alpha_v=ALPHA_V, joints=JOINTS, horizon=HORIZON):
-    p = lwa4p_joint_plant()
-    js = {j: mdl.JointSets(tuple(alpha_w), tuple(alpha_v), (0.0,) * 5, (0.0,), 0, horizon) for j in joints}
-    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), path)
-    return Path(path)
-
-
-def stream(n, seed=0):
-    """(Y, U) of shape (n, 2): two joints following the per-joint plant in closed loop,
-    bounded disturbances (0.01, 1.0) and 2e-5 rad noise."""
-    p = lwa4p_joint_plant()
-    rng = np.random.default_rng(seed)
-    X = np.zeros((2, 5))
-    Y, U = np.empty((n, 2)), np.empty((n, 2))
-    for k in range(n):
-        Y[k] = X[:, 0] + 2e-5 * rng.uniform(-1, 1, 2)
-        U[k] = np.sin(0.01 * k + np.arange(2)) - 50 * X[:, 1] - 10 * X[:, 2]
-        for j in range(2):
-            X[j] = p.A @ X[j] + p.B[:, 0] * U[k, j] + p.Gw @ (np.array([0.01, 1.0]) * rng.uniform(-1, 1, 2))
-    return Y, U
 
 
 # ============================================================ MonitorCore (no ROS)
@@ -91,11 +55,11 @@ def feed(core, ts, Y, U, drop_y=(), drop_u=()):
 
 
 def ticks_of(events):
-    return [e for e in events if e[0] == "tick"]
+    return [e for e in events if isinstance(e, TickEvent)]
 
 
 def faults_of(events):
-    return [e for e in events if e[0] == "fault"]
+    return [e for e in events if isinstance(e, FaultEvent)]
 
 
 def test_core_clean_stream_is_conformant_and_pairs_by_stamp_and_name(model):
@@ -109,8 +73,8 @@ def test_core_clean_stream_is_conformant_and_pairs_by_stamp_and_name(model):
         ev += core.add_u(t, JOINTS[::-1], [U[k, 1], U[k, 0]])
         ev += core.add_y(t, JOINTS, list(Y[k]))
     assert not faults_of(ev)
-    assert [e[1] for e in ticks_of(ev)] == ts
-    assert all(s == "ok" for e in ev for s in e[2]["status"])
+    assert [e.stamp for e in ticks_of(ev)] == ts
+    assert all(s == "ok" for e in ev for s in e.result["status"])
     assert core.counters["ticks"] == 400 and core.counters["gaps"] == 0
     # the same data in stamp order but all of /plant_input first (a burst from one side)
     core2 = MonitorCore(mdl.load(model))
@@ -119,7 +83,7 @@ def test_core_clean_stream_is_conformant_and_pairs_by_stamp_and_name(model):
     assert ev2 == [] and len(core2.pending) == 40
     for k, t in enumerate(ts2):
         ev2 += core2.add_y(t, JOINTS, list(Y[k]))
-    assert [e[1] for e in ticks_of(ev2)] == ts2 and not core2.pending
+    assert [e.stamp for e in ticks_of(ev2)] == ts2 and not core2.pending
 
 
 @pytest.mark.parametrize("case, kind, joint, words", [
@@ -157,12 +121,12 @@ def test_core_bad_sample_is_a_fault_with_its_reason(model, case, kind, joint, wo
     ev = core.add_y(t, names, y) + core.add_u(ts[60], JOINTS, u)
     f = faults_of(ev)
     assert len(f) == 1, ev
-    _, stamp, fkind, reason, fjoint = f[0]
+    stamp, fkind, reason, fjoint = f[0].stamp, f[0].kind, f[0].reason, f[0].joint
     assert (stamp, fkind, fjoint) == (t, kind, joint) and words in reason, f[0]
     # the core goes on: later ticks are processed (after a gap where the tick was rejected)
     ev = feed(core, ts[62:80], Y[62:], U[62:])
     assert not faults_of(ev) and len(ticks_of(ev)) == 18
-    assert ticks_of(ev)[-1][1] == ts[79]
+    assert ticks_of(ev)[-1].stamp == ts[79]
 
 
 def test_core_after_a_clock_jump_back_messages_of_checked_ticks_are_stale(model):
@@ -174,7 +138,7 @@ def test_core_after_a_clock_jump_back_messages_of_checked_ticks_are_stale(model)
     ev = feed(core, ts[:50], Y, U)
     ev = feed(core, ts[10:20], Y[10:], U[10:])
     f = faults_of(ev)
-    assert [e[2] for e in f] == ["stamp_backwards", "stamp_backwards"]   # one per topic
+    assert [e.kind for e in f] == ["stamp_backwards", "stamp_backwards"]   # one per topic
     assert not ticks_of(ev)
     assert (core.counters["stale_y"], core.counters["stale_u"]) == (9, 9)
     ev = feed(core, ts[50:], Y[50:], U[50:])          # back on the old clock, after the last tick
@@ -190,7 +154,7 @@ def test_core_extra_names_are_ignored_and_counted(model):
         ev += core.add_y(t, ["gripper_joint", JOINTS[1], JOINTS[0]], [123.0, Y[k, 1], Y[k, 0]])
         ev += core.add_u(t, JOINTS + ["other"], list(U[k]) + [math.nan])
     assert not faults_of(ev) and len(ticks_of(ev)) == 50
-    assert all(s == "ok" for e in ev for s in e[2]["status"])
+    assert all(s == "ok" for e in ev for s in e.result["status"])
     assert core.counters["extra_names_y"] == 50 and core.counters["extra_names_u"] == 50
 
 
@@ -209,7 +173,7 @@ def test_core_repeated_and_stale_stamps_are_skipped_and_counted(model):
     assert core.counters["duplicate_y"] == 2
     ev += feed(core, ts[41:60], Y[41:], U[41:])
     assert not faults_of(ev) and len(ticks_of(ev)) == 60
-    assert all(s == "ok" for e in ev for s in e[2]["status"])
+    assert all(s == "ok" for e in ev for s in e.result["status"])
 
 
 def test_core_dropped_messages_are_counted_gaps(model):
@@ -223,14 +187,14 @@ def test_core_dropped_messages_are_counted_gaps(model):
     ticks = ticks_of(ev)
     assert not faults_of(ev)
     assert len(ticks) == 295
-    assert all(s in ("ok", "gap_reset") for e in ticks for s in e[2]["status"])
-    assert [e[2]["status"][0] for e in ticks if e[1] in (ts[101], ts[151], ts[203])] == ["gap_reset"] * 3
+    assert all(s in ("ok", "gap_reset") for e in ticks for s in e.result["status"])
+    assert [e.result["status"][0] for e in ticks if e.stamp in (ts[101], ts[151], ts[203])] == ["gap_reset"] * 3
     c = core.counters
     assert (c["dropped_incomplete"], c["gaps"], c["missing_ticks"]) == (2, 3, 5)
     assert c["ticks"] + c["missing_ticks"] == 300
     # right after a gap nothing spans it: the first test case starts history+1 ticks later
-    after = next(e for e in ticks if e[1] == ts[203])
-    assert max(after[2]["checked"]) == 0
+    after = next(e for e in ticks if e.stamp == ts[203])
+    assert max(after.result["checked"]) == 0
 
 
 def test_core_burst_larger_than_pending_drops_oldest_counted(model):
@@ -245,7 +209,7 @@ def test_core_burst_larger_than_pending_drops_oldest_counted(model):
         ev += core.add_y(t, JOINTS, list(Y[k]))
     ticks = ticks_of(ev)
     assert not faults_of(ev)
-    assert [e[1] for e in ticks] == ts[200 - core.max_pending:]
+    assert [e.stamp for e in ticks] == ts[200 - core.max_pending:]
     c = core.counters
     # the oldest u-only ticks left the queue, then their y halves (older than all waiting
     # ticks) were dropped on arrival: both counted; the newest ticks were all completed
@@ -261,111 +225,6 @@ def test_core_joint_list_must_be_in_the_model(model):
 
 
 # ============================================================ real processes over DDS
-class Bus:
-    """The test's side of DDS: publishers and service clients on ``caller`` (main thread),
-    subscriptions on ``listener``, spun by its own executor thread so nothing is missed."""
-
-    def __init__(self):
-        self.caller = Node("faults_caller")
-        self.listener = Node("faults_listener")
-        self.status, self.stops, self.inputs = [], [], []
-        self.diags = {}
-        deep = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
-        L = self.listener
-        L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
-        L.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
-        L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
-        L.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, deep)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(L)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
-        C = self.caller
-        self.js = C.create_publisher(JointState, "joint_states", PUB_QOS)
-        self.pi = C.create_publisher(PlantInput, "plant_input", PUB_QOS)
-        self.est = C.create_publisher(JointEstimate, "observer/estimate", PUB_QOS)
-        self.ref = C.create_publisher(JointReference, "reference", PUB_QOS)
-
-    def _on_diag(self, arr):
-        for st in arr.status:
-            self.diags[st.name] = (st.level, st.message, {kv.key: kv.value for kv in st.values}, time.monotonic())
-
-    def close(self):
-        self.executor.shutdown()
-        self.listener.destroy_node()
-        self.caller.destroy_node()
-
-    def clear(self):
-        del self.status[:], self.stops[:], self.inputs[:]
-
-    @staticmethod
-    def wait(cond, timeout=15.0):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if cond():
-                return True
-            time.sleep(0.01)
-        return bool(cond())
-
-    def active_stops(self):
-        return [s for s in list(self.stops) if s.active]
-
-    def statuses(self, ts):
-        lo, hi = ts[0], ts[-1]
-        return [s for s in list(self.status) if lo <= stamp_ns(s.header.stamp) <= hi]
-
-    def call_trigger(self, name, timeout=15.0):
-        cli = self.caller.create_client(Trigger, name)
-        try:
-            assert cli.wait_for_service(timeout_sec=timeout), f"{name} not available"
-            fut = cli.call_async(Trigger.Request())
-            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=timeout)
-            assert fut.done(), f"{name} did not answer"
-            return fut.result()
-        finally:
-            self.caller.destroy_client(cli)
-
-    def set_params(self, target, values, atomically=True):
-        return set_remote_parameters(self.caller, target, values, atomically=atomically)
-
-    def get_param(self, target, name):
-        cli = self.caller.create_client(GetParameters, f"/{target}/get_parameters")
-        try:
-            assert cli.wait_for_service(timeout_sec=15.0)
-            fut = cli.call_async(GetParameters.Request(names=[name]))
-            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=15.0)
-            v = fut.result().values[0]
-            return {1: v.bool_value, 2: v.integer_value, 3: v.double_value, 4: v.string_value,
-                    8: list(v.double_array_value), 9: list(v.string_array_value)}.get(v.type)
-        finally:
-            self.caller.destroy_client(cli)
-
-    def counters(self, name="reachset_ros: conformance monitor", newer_than=None, timeout=15.0):
-        """Counters of the next /diagnostics of ``name`` received after ``newer_than`` (monotonic)."""
-        t = time.monotonic() if newer_than is None else newer_than
-        assert self.wait(lambda: name in self.diags and self.diags[name][3] > t, timeout), f"no diagnostics of {name}"
-        return {k: int(v) if v.lstrip("-").isdigit() else v for k, v in self.diags[name][2].items()}
-
-    def send_y(self, t, names, values):
-        m = JointState(name=list(names), position=[float(v) for v in values])
-        to_stamp(m.header.stamp, t)
-        self.js.publish(m)
-
-    def send_u(self, t, names, values):
-        m = PlantInput(name=list(names), acceleration=[float(v) for v in values])
-        to_stamp(m.header.stamp, t)
-        self.pi.publish(m)
-
-    def send_ticks(self, ts, Y, U, drop_y=(), drop_u=(), pace=0.002):
-        for k, t in enumerate(ts):
-            if k not in drop_y:
-                self.send_y(t, JOINTS, Y[k])
-            if k not in drop_u:
-                self.send_u(t, JOINTS[::-1], U[k][::-1])
-            if pace:
-                time.sleep(pace)
-
-
 @pytest.fixture(scope="module")
 def bus():
     rclpy.init()

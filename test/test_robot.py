@@ -155,9 +155,9 @@ def test_identification_recovers_a_perturbed_robot_with_unknown_torque_scale(mod
     truth = truth.replace(torque_scale=np.array([2.0, 3.0, 0.5, 1.5, 0.2, 0.1]))
     Q, QD, QDD, U = _synthetic(truth, 600, seed=5)
     gram = rb.torque_gram(model, rb.create_data(model), Q, QD, QDD, U)
-    ident = rb.identify(model, gram, method=method, base=base, prior_weight=1e-9,
-                        scale_weight=1e-9)
-    ph = rb.identify(model, gram, method="placeholder", base=base)
+    ident = rb.identify_inertial(model, gram, method=method, base=base, prior_weight=1e-9,
+                                 scale_weight=1e-9)
+    ph = rb.identify_inertial(model, gram, method="placeholder", base=base)
     rms_u = np.sqrt(np.mean(U ** 2, axis=0))
     assert np.all(ident.rms < 1e-3 * rms_u), ident.rms / rms_u
     assert np.all(ph.rms > 10 * ident.rms)
@@ -179,10 +179,10 @@ def test_placeholder_fit_is_exact_when_the_prior_is_the_truth(model, base):
     truth = model.replace(torque_scale=np.array([2.0, 3.0, 0.5, 1.5, 0.2, 0.1]))
     Q, QD, QDD, U = _synthetic(truth, 300, seed=7)
     gram = rb.torque_gram(model, rb.create_data(model), Q, QD, QDD, U)
-    ph = rb.identify(model, gram, method="placeholder", base=base)
+    ph = rb.identify_inertial(model, gram, method="placeholder", base=base)
     np.testing.assert_allclose(ph.torque_scale, truth.torque_scale, rtol=1e-7)
     gram_nm = rb.torque_gram(model, rb.create_data(model), Q, QD, QDD, U * truth.torque_scale)
-    fixed = rb.identify(model, gram_nm, method="placeholder", base=base, fit_scale=False)
+    fixed = rb.identify_inertial(model, gram_nm, method="placeholder", base=base, fit_scale=False)
     np.testing.assert_allclose(fixed.torque_scale, 1.0)
     assert np.all(fixed.rms < 1e-6 * np.sqrt(np.mean((U * truth.torque_scale) ** 2, axis=0)))
 
@@ -190,9 +190,9 @@ def test_placeholder_fit_is_exact_when_the_prior_is_the_truth(model, base):
 def test_identify_rejects_bad_input(model):
     gram = rb.torque_gram(model, rb.create_data(model), *_states(model, 10), np.zeros((10, 6)))
     with pytest.raises(ReachsetError, match="too few"):
-        rb.identify(model, gram)
+        rb.identify_inertial(model, gram)
     with pytest.raises(ReachsetError, match="unknown identification method"):
-        rb.identify(model, gram, method="magic")
+        rb.identify_inertial(model, gram, method="magic")
     with pytest.raises(ReachsetError, match="equal shapes"):
         rb.torque_gram(model, rb.create_data(model), np.zeros((3, 6)), np.zeros((3, 6)),
                        np.zeros((3, 6)), np.zeros((2, 6)))

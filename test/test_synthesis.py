@@ -2,7 +2,7 @@
 
 Simulated data: the per-joint plant of Appendix A in closed loop (HG observer + static
 feedback) with bounded disturbances and a smooth model error along the reference
-(:func:`reachset_ros.synthesis.simulate_recordings`); real solvers (HiGHS), small sizes and a
+(:func:`reachset_ros.sim.recordings.simulate_recordings`); real solvers (HiGHS), small sizes and a
 reduced search (``SEARCH``) to keep the module fast.
 """
 import json
@@ -15,6 +15,8 @@ from reachset_ros import cli
 from reachset_ros import conformance as cf
 from reachset_ros.conformance import model as mdl
 from reachset_ros import synthesis as sy
+from reachset_ros.bags.references import Reference
+from reachset_ros.sim import recordings as sr
 from reachset_ros.systems.closedloop import analyze, close_loop, simulate
 from reachset_ros.errors import InfeasibleError, ReachsetError
 from reachset_ros.conformance.estimators import Estimator
@@ -36,12 +38,12 @@ def run_cli(argv, capsys):
 
 @pytest.fixture(scope="module")
 def recs():
-    return sy.simulate_recordings(JOINTS, TICKS, seed=3)
+    return sr.simulate_recordings(JOINTS, TICKS, seed=3)
 
 
 @pytest.fixture(scope="module")
 def problems(recs):
-    series, refs = sy.recordings_series(recs)
+    series, refs = sr.recordings_series(recs)
     return sy.problems_from_series(series, PLANT, Estimator("fd"), 125, 26.0, 2.0, refs, 3)
 
 
@@ -54,7 +56,7 @@ def hg_results(problems):
 @pytest.fixture(scope="module")
 def bag(recs, tmp_path_factory):
     path = tmp_path_factory.mktemp("synth") / "sim"
-    sy.write_recordings(path, {n: recs[n] for n in JOINTS[:2]})
+    sr.write_recordings(path, {n: recs[n] for n in JOINTS[:2]})
     return path
 
 
@@ -82,7 +84,7 @@ def test_lti_simulate_equals_the_tick_loop():
 def test_reference_loop_matches_the_tick_by_tick_nodes_code_path():
     from reachset_ros.systems.closedloop import simulate_ticks
     rng = np.random.default_rng(1)
-    for g in (sy.DEFAULT_GAINS, {"observer": "eso", "controller": "compensated", "omega": 20, "zeta": 1,
+    for g in (sr.DEFAULT_GAINS, {"observer": "eso", "controller": "compensated", "omega": 20, "zeta": 1,
                                  "l1": 57.1, "l2": 103.3, "l3": 18.1, "eps": 0.01}):
         obs, ctrl = sy.components_from_gains(g)
         T = 2000
@@ -97,9 +99,9 @@ def test_reference_loop_matches_the_tick_by_tick_nodes_code_path():
 
 
 def test_reference_error_vanishes_for_a_constant_reference():
-    obs, ctrl = sy.components_from_gains(sy.DEFAULT_GAINS)
+    obs, ctrl = sy.components_from_gains(sr.DEFAULT_GAINS)
     T = 500
-    ref = sy.Reference(np.arange(T), np.full(T, 0.7), np.zeros(T), np.zeros(T))
+    ref = Reference(np.arange(T), np.full(T, 0.7), np.zeros(T), np.zeros(T))
     re = sy.reference_error(PLANT, obs, ctrl, [ref])
     assert re.norm < 1e-9 and abs(re.u_lo) < 1e-6 and abs(re.u_hi) < 1e-6   # rounding only
 
@@ -107,7 +109,7 @@ def test_reference_error_vanishes_for_a_constant_reference():
 def test_alpha_polytope_keeps_the_identification_optimum(problems):
     """The reduced Theorem-1 rows give the same min ||W|| + ||V|| as the full LP."""
     pb = problems[0]
-    full = cf.identify(pb.plant, pb.thm, pb.devs, horizon=pb.horizon)
+    full = cf.identify_sets(pb.plant, pb.thm, pb.devs, horizon=pb.horizon)
     alpha, val = pb.polytope.minimize(cf.set_norm_cost(pb.plant))
     assert len(pb.polytope.h) < pb.polytope.rows_total
     assert val == pytest.approx(full.cost, rel=1e-6)
@@ -232,10 +234,10 @@ def test_iterative_procedure_with_a_simulated_robot():
 
     def record(gains):
         calls.append(gains)
-        recs = sy.simulate_recordings(["j"], 2500, seed=10 + len(calls), gains=gains)
-        return sy.recordings_series(recs)[0]
+        recs = sr.simulate_recordings(["j"], 2500, seed=10 + len(calls), gains=gains)
+        return sr.recordings_series(recs)[0]
 
-    series = sy.recordings_series(sy.simulate_recordings(["j"], 2500, seed=10))[0]
+    series = sr.recordings_series(sr.simulate_recordings(["j"], 2500, seed=10))[0]
     space = sy.SearchSpace.from_config(sy.load_config(), "hg")
     hist = sy.iterate(record, series, space, iterations=2, search=SEARCH)
     assert [h["step"] for h in hist] == ["synthesis 1", "synthesis 2", "re-identification"]
@@ -252,8 +254,8 @@ def test_iterative_procedure_with_the_projects_simulated_arm():
 
     def record(gains, seed=[20]):
         seed[0] += 1
-        recs = sy.simulate_arm_recordings(6.0, gains, seed=seed[0])
-        series, refs = sy.recordings_series({joint: recs[joint]})
+        recs = sr.simulate_arm_recordings(6.0, gains, seed=seed[0])
+        series, refs = sr.recordings_series({joint: recs[joint]})
         return series, refs
 
     space = sy.SearchSpace.from_config(sy.load_config(), "hg")

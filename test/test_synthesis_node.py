@@ -2,7 +2,7 @@
 
 controller_node, observer_node, monitor_node and synthesis_node run as separate processes
 (``reachset_ros.launch``), the synthesis runs on a real bag written with the package's bag
-writer from simulated closed-loop recordings (``synthesis.simulate_recordings``, as in
+writer from simulated closed-loop recordings (``sim.recordings.simulate_recordings``, as in
 test_synthesis.py; 1000 ticks and a small search, a few seconds per synthesis), and every
 parameter is read back through the nodes' ``get_parameters`` services.
 """
@@ -18,7 +18,7 @@ from reachset_msgs.srv import Synthesize
 
 from reachset_ros import launch
 from reachset_ros.conformance import model as mdl
-from reachset_ros import synthesis as sy
+from reachset_ros.sim import recordings as sr
 from reachset_ros.nodes.common import get_remote_parameters, set_remote_parameters
 
 ALL_JOINTS = [f"arm_{i}_joint" for i in range(1, 7)]
@@ -41,9 +41,9 @@ NAMES = {"controller_node": ["joints", "observer", "controller", *GAIN_KEYS, "u_
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory):
     """Simulated closed-loop recordings (4 s) of two arm joints and a joint no node has."""
-    recs = sy.simulate_recordings(["arm_1_joint", J, "gripper_joint"], 1000, seed=3)
+    recs = sr.simulate_recordings(["arm_1_joint", J, "gripper_joint"], 1000, seed=3)
     path = tmp_path_factory.mktemp("synth_node") / "sim"
-    sy.write_recordings(path, recs)
+    sr.write_recordings(path, recs)
     return path
 
 

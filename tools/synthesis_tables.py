@@ -33,7 +33,7 @@ ESO0 = {"observer": "eso", "controller": "compensated", "omega": 20.0, "zeta": 1
 
 def simulate(args):
     from reachset_ros.conformance import model as mdl
-    from reachset_ros import synthesis as sy
+    from reachset_ros.sim import recordings as sr
     gains = None
     if args.gains:
         m = mdl.load(args.gains)
@@ -41,8 +41,8 @@ def simulate(args):
     elif args.initial == "eso":
         gains = ESO0
     t = time.perf_counter()
-    recs = sy.simulate_arm_recordings(args.seconds, gains, seed=args.seed)
-    sy.write_recordings(args.out, recs)
+    recs = sr.simulate_arm_recordings(args.seconds, gains, seed=args.seed)
+    sr.write_recordings(args.out, recs)
     print(f"simulated {args.seconds:g} s ({len(next(iter(recs.values())).y)} ticks, {len(recs)} joints) "
           f"in {time.perf_counter() - t:.1f} s -> {args.out}", file=sys.stderr)
 

@@ -2,20 +2,17 @@
 
 The paper's Appendix-B reference error needs the references the closed loop was driven with;
 :func:`read_references` cuts them into consecutive stretches (:class:`Reference`) per joint.
+Both topics are read through the bag reader (:func:`.series.read_topic_rows`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
-from ..errors import ReachsetError
-from . import segments_of, typestore
+from .messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
+from .series import read_topic_rows, segments_of
 
-REFERENCE_TOPIC = "/reference"
-ESTIMATE_TOPIC = "/observer/estimate"
 
 @dataclass(frozen=True)
 class Reference:
@@ -32,52 +29,6 @@ class Reference:
 
     def slice(self, lo, hi, warmup=0):
         return Reference(self.stamps[lo:hi], self.q[lo:hi], self.qd[lo:hi], self.qdd[lo:hi], int(warmup))
-
-
-def read_topic_rows(paths, topic, fields, joints=None):
-    """Per-joint ``(stamps, values (T, len(fields)))`` of a topic with ``name[]`` and float arrays.
-
-    Decoded with rosbags (the bag's own message definitions); sorted by header stamp,
-    duplicate stamps dropped. Returns ``None`` when no bag has the topic.
-    """
-    ts = typestore()
-    cols, found = {}, False
-    for p in paths:
-        path = Path(p)
-        try:
-            with Reader(path) as reader:
-                conns = [c for c in reader.connections if c.topic == topic]
-                if not conns:
-                    continue
-                found = True
-                for conn, _, raw in reader.messages(connections=conns):
-                    msg = ts.deserialize_cdr(raw, conn.msgtype)
-                    st = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-                    arrs = [np.asarray(getattr(msg, f), float) for f in fields]
-                    for i, nm in enumerate(msg.name):
-                        if joints is not None and nm not in joints:
-                            continue
-                        row = [a[i] if i < len(a) else np.nan for a in arrs]
-                        cols.setdefault(nm, ([], []))
-                        cols[nm][0].append(st)
-                        cols[nm][1].append(row)
-        except ReachsetError:
-            raise
-        except Exception as e:  # rosbags raises many types for damaged files
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise ReachsetError(f"{path}: cannot read {topic} ({type(e).__name__}: {first})") from None
-    if not found:
-        return None
-    out = {}
-    for nm, (st, rows) in cols.items():
-        st = np.asarray(st, np.int64)
-        vals = np.asarray(rows, float).reshape(len(st), len(fields))
-        order = np.argsort(st, kind="stable")
-        st, vals = st[order], vals[order]
-        keep = np.ones(len(st), bool)
-        keep[1:] = st[1:] != st[:-1]
-        out[nm] = (st[keep], vals[keep])
-    return out
 
 
 def _split(stamps, valid, dt):

@@ -2,7 +2,7 @@
 from pathlib import Path
 
 from ..bags import read_joint_series
-from ..conformance import require_horizon  # noqa: F401  (re-exported for the commands)
+from ..conformance.kernels import require_horizon  # noqa: F401  (re-exported for the commands)
 from ..errors import ReachsetError
 
 

@@ -15,7 +15,13 @@ Defaults are the paper's axis-1 values of the experiment that uses the chosen ob
 ``--u-ff`` is the half-width of U_ff (paper: |qdd_d| <= 2 rad/s^2). An unstable loop is not
 an error: ``stable`` is false and the set keys are null.
 """
+import math
+
 from ..errors import ReachsetError
+from ..systems.closedloop import analyze, close_loop
+from ..systems.controllers import compensated_feedback, static_feedback
+from ..systems.observers import extended_state_observer, high_gain_observer
+from ..systems.plant import lwa4p_joint_plant
 from . import emit
 
 NAME = "analyze"
@@ -55,19 +61,11 @@ def add_arguments(p):
 
 
 def _finite_positive(name, v):
-    import math
     if v is None or not math.isfinite(v) or v <= 0:
         raise ReachsetError(f"--{name} must be a positive finite number, got {v}")
 
 
 def run(args):
-    import math
-
-    from ..systems.closedloop import analyze, close_loop
-    from ..systems.controllers import compensated_feedback, static_feedback
-    from ..systems.observers import extended_state_observer, high_gain_observer
-    from ..systems.plant import lwa4p_joint_plant
-
     d = _DEFAULTS[args.observer]
     ctrl_kind = args.controller or d["controller"]
     omega = d["omega"] if args.omega is None else args.omega
@@ -88,9 +86,9 @@ def run(args):
     plant = lwa4p_joint_plant(dt=args.dt)
     try:
         if args.observer == "hg":
-            obs = high_gain_observer(args.h1, args.h2, args.eps, args.dt)
+            obs = high_gain_observer(args.h1, args.h2, eps=args.eps, dt=args.dt)
         else:
-            obs = extended_state_observer(args.l1, args.l2, args.l3, args.eps, args.dt, args.eso_input)
+            obs = extended_state_observer(args.l1, args.l2, args.l3, eps=args.eps, dt=args.dt, u_input=args.eso_input)
         ctrl = static_feedback(omega, zeta) if ctrl_kind == "static" else compensated_feedback(omega, zeta)
         cl = close_loop(plant, obs, ctrl)
         res = analyze(cl, alpha_w, [alpha_v], u_ff=args.u_ff)

@@ -1,6 +1,8 @@
 """``reachset check``: batch Theorem-1 conformance check of bags against a model."""
-from .. import conformance as cf
 from ..conformance import model as mdl
+from ..conformance.theorem1 import Theorem1, check, deviation_extremes
+from ..errors import ReachsetError
+from ..plots import plot_deviations
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon
 
@@ -26,20 +28,18 @@ def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
-    thm = cf.Theorem1.build(model.plant, model.horizon)
+    thm = Theorem1.build(model.plant, model.horizon)
     joints = {}
     for name, s in series.items():
         if name not in model.joints:
-            from ..errors import ReachsetError
             raise ReachsetError(f"joint {name} is not in the model {args.model}")
         xi = model.joints[name].xi(model.inflation)
-        res = cf.check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
+        res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
         joints[name] = joint_result(s.stamps, res)
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
               "data": report.as_dict()}
     if args.plot:
-        from ..plots import plot_deviations
-        result["plots"] = [plot_deviations(args.plot, name, model, thm, cf.deviation_extremes(
+        result["plots"] = [plot_deviations(args.plot, name, model, thm, deviation_extremes(
             model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)) for name, s in series.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"

@@ -7,6 +7,7 @@ procedure, Sec. III-D, second iteration); gains and model go to the nodes, the m
 the monitor; 4. a monitored run (recorded to ``--record``) into which a fault is
 injected; the monitor stops the arm. Prints a summary and writes plots.
 """
+import argparse
 import json
 import sys
 import tempfile
@@ -15,7 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bags.messages import FAULT_ONSET_TOPIC, SAFE_STOP_TOPIC, STATUS_TOPIC
+from ..bags.series import read_messages
 from ..errors import ReachsetError
+from ..plots import demo_plots
 from . import emit
 
 NAME = "demo"
@@ -33,16 +37,19 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated arm and the reference")
     p.add_argument("--fault", default="acceleration:arm_1_joint:30",
                    help="KIND:JOINT:MAGNITUDE (kinds: acceleration, torque, payload, bias, frozen, nan)")
-    p.add_argument("--margin", type=float, default=1.0,
-                   help="inflation of the identified sets used by the monitor (model 'inflation'): fewer "
-                        "false alarms on motions the training runs did not cover, slower detection")
+    p.add_argument("--inflation", type=float, default=1.0, metavar="F",
+                   help="inflation of the identified sets used by the monitor (model 'inflation'; the sets "
+                        "are scaled by 1 + F): fewer false alarms on motions the training runs did not "
+                        "cover, slower detection")
+    # deprecated spelling of --inflation (hidden), so that old command lines still work
+    p.add_argument("--margin", dest="inflation", type=float, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args):
-    from ..nodes.demo_driver import run_demo
-    if args.margin < 0:
-        raise ReachsetError("--margin must be >= 0")
+    from ..nodes.demo_driver import run_demo  # heavy optional dependency: rclpy (cli.py imports every command)
+    if args.inflation < 0:
+        raise ReachsetError("--inflation must be >= 0")
     if args.duration <= 0 or args.train <= 0:
         raise ReachsetError("--duration and --train must be positive")
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="reachset_demo_"))
@@ -60,8 +67,8 @@ def run(args):
     t0 = time.monotonic()
     fault_at = args.inject_fault_at if args.inject_fault_at is not None and args.inject_fault_at >= 0 else None
     try:
-        res = run_demo(workdir, record, args.duration, fault_at, args.train, seed=args.seed, log=log, fault=fault,
-                       margin=args.margin)
+        res = run_demo(workdir, record, duration=args.duration, fault_at=fault_at, train=args.train,
+                       seed=args.seed, log=log, fault=fault, inflation=args.inflation)
     except RuntimeError as e:
         raise ReachsetError(f"demo: {e} (logs in {workdir})") from e
     summary = summarize(res, record, workdir)
@@ -95,22 +102,16 @@ def rate_hz(t_ns):
 
 def summarize(res, record, workdir):
     """Read the monitored bag back and put the story into numbers."""
-    from ..bags import typestore
-    from rosbags.highlevel import AnyReader
-    ts = typestore()
     status, stops, onset = [], [], None
-    with AnyReader([Path(record)], default_typestore=ts) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/conformance/status", "/safe_stop", "/sim/fault_onset")]
-        for c, t, raw in reader.messages(connections=conns):
-            m = ts.deserialize_cdr(raw, c.msgtype)
-            h = m if c.topic == "/sim/fault_onset" else m.header
-            st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
-            if c.topic == "/conformance/status":
-                status.append((st, bool(m.conformant), t))
-            elif c.topic == "/safe_stop":
-                stops.append((st, bool(m.active), m.reason))
-            else:
-                onset = st
+    for topic, t, m in read_messages([record], (STATUS_TOPIC, SAFE_STOP_TOPIC, FAULT_ONSET_TOPIC)):
+        h = m if topic == FAULT_ONSET_TOPIC else m.header
+        st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+        if topic == STATUS_TOPIC:
+            status.append((st, bool(m.conformant), t))
+        elif topic == SAFE_STOP_TOPIC:
+            stops.append((st, bool(m.active), m.reason))
+        else:
+            onset = st
     fault_ns = res.get("fault_injected_ns") or onset
     first_stop = next((s for s in stops if s[1]), None)
     stop_ns = res.get("safe_stop_ns") or (first_stop[0] if first_stop else None)
@@ -130,7 +131,8 @@ def summarize(res, record, workdir):
         "status_rate_hz_log_time": log_rate, "real_time_factor": res.get("real_time_factor"),
         "synthesis": res.get("synthesis"), "reidentify": res.get("reidentify"),
         "record": str(record), "early_stop": res.get("early_stop"),
-        "monitor_model": res.get("monitor_model"), "margin": res.get("margin"),
+        "monitor_model": res.get("monitor_model"), "inflation": res.get("inflation"),
+        "margin": res.get("inflation"),   # deprecated name of "inflation", kept for readers of old summaries
         "ticks_monitored": int(len(before)),
         "gains_before": (res.get("phases") or [{}])[0].get("gains"),
         "gains_after": {n: j["gains"] for n, j in ((res.get("reidentify") or res.get("synthesis") or {})
@@ -138,7 +140,6 @@ def summarize(res, record, workdir):
         "second_iteration_failed": res.get("second_iteration_failed"),
     }
     try:
-        from ..plots import demo_plots
         out["plots"], out["tracking"] = demo_plots(res, record, workdir)
     except Exception as e:  # plots are a convenience; never fail the demo for them
         out["plots_error"] = f"{type(e).__name__}: {e}"
@@ -158,7 +159,7 @@ def human_summary(s):
                 f"rad/s; synthesis R*_e radius {t['re_radius'][0]:.3g}, {t['re_radius'][1]:.3g} "
                 f"({t['share_inside']:.1%} of {t['ticks']} ticks inside)")
         if "run_radius" in t:
-            line += (f"; this run's R*_e (its references, margin) radius {t['run_radius'][0]:.3g}, "
+            line += (f"; this run's R*_e (its references, inflation) radius {t['run_radius'][0]:.3g}, "
                      f"{t['run_radius'][1]:.3g} ({t['share_inside_run']:.1%} inside)")
         lines.append(line)
     lines.append(f"ticks monitored until the stop: {s['ticks_monitored']}; status messages: {s['status_messages']} "

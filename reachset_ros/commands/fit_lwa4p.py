@@ -6,8 +6,12 @@ result is the nominal model M_hat, psi_hat of the feedback linearization and of
 ``reachset import-lwa4p`` (see reachset_ros.robot.lwa4p and docs/robot.md). The shipped
 config/lwa4p_nominal.yaml was made with ``--runs 1-70``; runs 71-100 are held out.
 """
+import dataclasses
 import shlex
+from pathlib import Path
 
+from ..errors import ReachsetError
+from ..robot import lwa4p
 from . import emit
 
 NAME = "fit-lwa4p"
@@ -45,11 +49,6 @@ def _command(args):
 
 
 def run(args):
-    import dataclasses
-    from pathlib import Path
-
-    from ..robot import lwa4p
-    from ..errors import ReachsetError
     out = Path(args.out)
     if out.exists():
         raise ReachsetError(f"{out}: output file already exists")

@@ -7,7 +7,7 @@ Options beyond the paper's separate approach:
 - ``--method corollary1``: the conservative state-based variant (paper Corollary 1); it
   needs an estimator consistent with the model and fails with a message naming the test
   case and state direction otherwise (always on noisy LWA-4P data with ``fd``).
-- ``--validate BAG...``: margin calibration on held-out bags. Each joint's identified sets
+- ``--validate BAG...``: inflation calibration on held-out bags. Each joint's identified sets
   are checked on the validation bags (``reachset check``'s arithmetic) with the sets scaled
   by 1 + inflation for inflation 0 and each ``--inflation-grid`` value; per joint the
   smallest grid value with no held-out violation is chosen (the largest grid value,
@@ -22,10 +22,13 @@ import sys
 
 import numpy as np
 
-from .. import conformance as cf
 from ..conformance import model as mdl
-from ..errors import ReachsetError
+from ..conformance.corollary1 import identify_corollary1
 from ..conformance.estimators import ESTIMATORS, Estimator
+from ..conformance.identify import identify_quadratic, identify_sets, stable_horizon
+from ..conformance.theorem1 import Theorem1, deviation_extremes_many
+from ..conformance.validation import detection_delay, validation_grid
+from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
 from . import emit
 from ._bagargs import add_bag_arguments, check_out_path, load_series, require_horizon
@@ -67,22 +70,22 @@ def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=Non
     ``settled_k`` (Remark 3) is computed with the linear cost; it is None for Corollary 1,
     which needs no horizon.
     """
-    thm = thm or cf.Theorem1.build(plant, horizon)
+    thm = thm or Theorem1.build(plant, horizon)
     out = {}
-    devs = cf.deviation_extremes_many(plant, est, series, horizon, thm)
+    devs = deviation_extremes_many(plant, est, series, horizon, thm)
     for name, s in series.items():
         dev = devs[name]
         try:
             if method == "corollary1":
-                sets = cf.identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
-                                              alpha_lower=alpha_lower, horizon=horizon, thm=thm)
+                sets = identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
+                                           alpha_lower=alpha_lower, horizon=horizon, thm=thm)
                 settled = None
             else:
                 if cost == "quadratic":
-                    sets = cf.identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                    sets = identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
                 else:
-                    sets = cf.identify(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
-                settled, _ = cf.stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                    sets = identify_sets(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                settled, _ = stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: {e}") from None
         out[name] = (sets, dev, settled)
@@ -102,8 +105,8 @@ def validate(plant, est, horizon, thm, joints, vseries, grid, fault_accel):
     for name, js in joints.items():
         s = vseries[name]
         try:
-            rows, chosen, flagged = cf.validation_grid(plant, thm, est, js, s.y, s.u, s.segments,
-                                                       horizon, grid)
+            rows, chosen, flagged = validation_grid(plant, thm, est, js, s.y, s.u, s.segments,
+                                                    horizon, grid)
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: validation: {e}") from None
         per[name] = (rows, chosen, flagged)
@@ -116,8 +119,8 @@ def validate(plant, est, horizon, thm, joints, vseries, grid, fault_accel):
             r["first_violation_ns"] = int(s.stamps[t]) if t >= 0 else None
         model_row = next(r for r in rows if r["inflation"] == inflation)   # same grid for all joints
         try:
-            fault = cf.detection_delay(plant, thm, est, joints[name].xi(inflation), s.y, s.u, s.segments,
-                                       horizon, fault_accel, plant.dt)
+            fault = detection_delay(plant, thm, est, joints[name].xi(inflation), s.y, s.u, s.segments,
+                                    horizon, fault_accel, plant.dt)
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: validation: {e}") from None
         fault["onset_ns"] = int(s.stamps[fault["onset_tick"]])

@@ -5,6 +5,8 @@
 model, config/lwa4p_nominal.yaml by default), header stamps = receive times, runs separated
 by a pause in the stamps. See reachset_ros.robot.lwa4p.import_runs for the exact layout.
 """
+from ..errors import ReachsetError
+from ..robot import lwa4p
 from . import emit
 
 NAME = "import-lwa4p"
@@ -23,8 +25,6 @@ def add_arguments(p):
 
 
 def run(args):
-    from ..robot import lwa4p
-    from ..errors import ReachsetError
     if not args.gap > 0:
         raise ReachsetError(f"--gap must be > 0 s, got {args.gap}")
     runs = lwa4p.parse_runs(args.runs)

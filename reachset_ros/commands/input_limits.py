@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..robot import input_limits as il
-from .. import robot as rb
 from ..atomic import write_yaml
 from ..errors import ReachsetError
+from ..robot import input_limits as il
+from ..robot.dynamics import TABLE1_TAU_MAX, load_model
 from . import emit
 
 NAME = "input-limits"
@@ -68,7 +68,7 @@ def _write(path, d):
 
 
 def run(args):
-    model = rb.load_model(args.urdf, args.params)
+    model = load_model(args.urdf, args.params)
     n = model.nv
     tau = _vec("tau-max", args.tau_max, n)
     qmax = _vec("q-max-deg", args.q_max_deg, n, math.pi / 180.0, positive=False)
@@ -80,7 +80,7 @@ def run(args):
     if args.check:
         a = _vec("check", args.check, n)
         ok, worst = il.check_limits(model, a, tau, qmax, qdmax, args.splits if len(args.splits) > 1 else args.splits[0])
-        tmax = np.broadcast_to(rb.TABLE1_TAU_MAX if tau is None else tau, (n,))
+        tmax = np.broadcast_to(TABLE1_TAU_MAX if tau is None else tau, (n,))
         result = {"check": True, "ok": ok, "u_max": a.tolist(), "bound_torque": worst.tolist(),
                   "tau_max": list(map(float, tmax)), "joints": list(model.joint_names), "model": model.source}
         emit(args, result, ("certified" if ok else "NOT certified (the sound bound exceeds tau_max; try more --splits)")

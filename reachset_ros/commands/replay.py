@@ -3,10 +3,11 @@ import time
 
 import numpy as np
 
-from .. import conformance as cf
 from ..conformance import model as mdl
-from ..errors import ReachsetError
+from ..conformance.kernels import test_case_starts
 from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
+from ..conformance.theorem1 import Theorem1
+from ..errors import ReachsetError
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon
 
@@ -59,7 +60,7 @@ def replay_joints(model, series, thm=None):
                         first[j] = int(s0.stamps[i])
         durs.append(d)
         for j, n in enumerate(group):
-            starts = cf.test_case_starts(series[n].segments, model.estimator.history)[0]
+            starts = test_case_starts(series[n].segments, model.estimator.history)[0]
             out[n] = {"violations": int(viol[j]), "first_violation_ns": first[j],
                       "test_cases": int(len(starts)), "checks": int(checks[j])}
     return out, durs, together
@@ -69,7 +70,7 @@ def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
-    thm = cf.Theorem1.build(model.plant, model.horizon)
+    thm = Theorem1.build(model.plant, model.horizon)
     missing = [n for n in series if n not in model.joints]
     if missing:
         raise ReachsetError(f"joint {missing[0]} is not in the model {args.model}")

@@ -12,7 +12,7 @@ def add_arguments(p):
 
 
 def run(args):
-    from ..nodes.selftest import run_selftest
+    from ..nodes.selftest import run_selftest  # heavy optional dependency: rclpy (cli.py imports every command)
     try:
         res = run_selftest(timeout=args.timeout)
     except RuntimeError as e:

@@ -20,10 +20,13 @@ import math
 import sys
 import time
 
+from ..bags.references import read_estimates
 from ..conformance import model as mdl
-from .. import synthesis as sy
-from ..errors import ReachsetError
 from ..conformance.estimators import ESTIMATORS
+from ..errors import ReachsetError
+from ..synthesis.config import PARAMS
+from ..synthesis.pipeline import synthesize_bags
+from ..synthesis.reference_error import ReferenceMethod
 from . import emit
 from ._bagargs import add_bag_arguments, check_out_path, parse_joints
 
@@ -58,7 +61,8 @@ def add_arguments(p):
                    help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
                    help="lower bounds on [alpha_W..., alpha_V...]")
-    p.add_argument("--reference-method", type=int, choices=[1, 2, 3], default=3,
+    p.add_argument("--reference-method", type=int, choices=[int(m) for m in ReferenceMethod],
+                   default=int(ReferenceMethod.REFERENCE_SET),
                    help="Appendix B: 3 (default) sets over the bags' references inside the optimisation; "
                         "2 optimise without, check R_u + u_e,ff for the recorded references; "
                         "1 the controller tracks y_cl,ref (no u_e,ff)")
@@ -93,7 +97,7 @@ def _human(res):
     lines = []
     for n, r in res.items():
         g = r.gains()
-        pars = ", ".join(f"{k}={g[k]:.4g}" for k in sy.PARAMS[r.observer])
+        pars = ", ".join(f"{k}={g[k]:.4g}" for k in PARAMS[r.observer])
         lines.append(f"{n}: {r.mode} {r.observer}+{r.controller}: ||R_e|| = {r.re_norm:.4g}, "
                      f"R_u = [{r.ru[0]:.4g}, {r.ru[1]:.4g}] in U_p = [-{r.u_max:g}, {r.u_max:g}]; {pars}; "
                      f"alpha_w = [{', '.join(f'{a:.4g}' for a in r.alpha_w)}], "
@@ -102,7 +106,7 @@ def _human(res):
         if r.separate is not None:
             s = r.separate
             lines.append(f"  separate: ||R_e|| = {s.re_norm:.4g}, R_u = [{s.ru[0]:.4g}, {s.ru[1]:.4g}], "
-                         + ", ".join(f"{k}={s.params[k]:.4g}" for k in (s.free or sy.PARAMS[s.observer]))
+                         + ", ".join(f"{k}={s.params[k]:.4g}" for k in (s.free or PARAMS[s.observer]))
                          + f", alpha_w = [{', '.join(f'{a:.4g}' for a in s.alpha_w)}]")
         for row in r.extra.get("lqg", []):
             if "re_norm" in row:
@@ -153,17 +157,17 @@ def run(args):
     out = check_out_path(args.out)
     free = None if args.free is None else [x.strip() for x in args.free.split(",") if x.strip()]
     joints = None if args.joints in (None, "all") else parse_joints(args.joints)
-    bs = sy.synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
-                            _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
-                            args.alpha_lower, args.reference_method, args.eso_input, args.seed,
-                            tuple(args.lqg_r or ()), args.config, args.model, args.dt)
+    bs = synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
+                         _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
+                         args.alpha_lower, ReferenceMethod(args.reference_method), args.eso_input, args.seed,
+                         tuple(args.lqg_r or ()), args.config, args.model, args.dt)
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []
     if args.plot:
-        from .. import plots as pl
+        from .. import plots as pl  # heavy optional dependency: matplotlib, only for --plot
         names = list(bs.results)
-        est_rows = sy.read_estimates(args.bags, names)
+        est_rows = read_estimates(args.bags, names)
         for pb in bs.problems:
             plots += [str(p) for p in pl.plot_joint(args.plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
         result["plots"] = plots

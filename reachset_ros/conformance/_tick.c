@@ -1,13 +1,15 @@
 /* One tick of the online conformance monitor (paper Theorem 1, checked tick by tick).
  *
- * A compiled copy of reachset_ros.monitor.Monitor._tick_numpy for the per-joint LWA-4P
+ * A compiled copy of reachset_ros.conformance.monitor.Monitor._tick_numpy for the per-joint LWA-4P
  * plant with the "fd" initial-state estimator. Every floating-point operation is the one
  * numpy performs there, in the same order, each rounded on its own: this file must be
  * compiled with -ffp-contract=off (no fused multiply-add) and without -ffast-math, so
  * that the verdicts stay bitwise equal to `reachset check` (test/test_monitor_kernel.py
  * compares the two paths bit for bit).
  *
- * Loaded with ctypes by reachset_ros/monitor.py; no Python API is used.
+ * Loaded with ctypes by reachset_ros/conformance/kernels.py (with reachset_sweep_block below);
+ * the state struct is mirrored by _TickState in reachset_ros/conformance/monitor.py. No
+ * Python API is used.
  */
 #include <math.h>
 #include <stdint.h>
@@ -44,7 +46,7 @@ typedef struct {
 
 /* out[c] = sum over the nonzero entries a of row `row` of M (n_cols wide), in order, of
  * a * X[j][c] (a factor 1.0 taken as X[j][c] itself), the first term assigned, not added:
- * exactly reachset_ros.conformance.matvec_into. */
+ * exactly reachset_ros.conformance.kernels.matvec_into. */
 static void row_matvec(const double *Mrow, int64_t ncols, const double *X, int64_t N, double *out)
 {
     int first = 1;
@@ -143,7 +145,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         int64_t c = j * S + slot;
         s->active[c] = 0;
         if (s->in_segment[j] > H) {
-            /* the "fd" estimate, reachset_ros.estimators.fd_formula, same operation order */
+            /* the "fd" estimate, reachset_ros.conformance.estimators.fd_formula, same operation order */
             const double *yh = s->y_hist + j * W, *uh = s->u_hist + j * W;
             double dt = s->dt;
             double ym = yh[3], ym1 = yh[2], u1 = uh[2], u2 = uh[1], u3 = uh[0];
@@ -214,7 +216,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         if (s->status[j] != 0)
             all_ok = 0;
     }
-    /* advance: X <- A X + B U, as conformance.advance (A part, then + the B part) */
+    /* advance: X <- A X + B U, as kernels.advance (A part, then + the B part) */
     for (int64_t i = 0; i < n; ++i) {
         row_matvec(s->A + i * n, n, X, NS, Xn + i * NS);
         row_matvec(s->B + i, 1, s->U, NS, s->BU);
@@ -228,7 +230,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
 /* ------------------------------------------------------------------ the batch sweep */
 
 /* A matrix's nonzero entries per row, in row-major order (zeros are skipped, as in
- * conformance._plan; a factor 1.0 is multiplied, which is exact: 1.0 * x == x). */
+ * kernels.matvec_plan; a factor 1.0 is multiplied, which is exact: 1.0 * x == x). */
 typedef struct {
     int64_t rows;
     int64_t start[65];   /* row r: entries start[r] .. start[r+1]-1 */
@@ -252,7 +254,7 @@ static void make_plan(plan_t *p, const double *M, int64_t rows, int64_t cols)
     p->start[rows] = e;
 }
 
-/* one column of conformance.matvec_into: first term assigned, the others added in order,
+/* one column of kernels.matvec_into: first term assigned, the others added in order,
  * an empty row gives 0.0 */
 static inline double plan_dot(const plan_t *p, int64_t r, const double *v)
 {
@@ -265,7 +267,7 @@ static inline double plan_dot(const plan_t *p, int64_t r, const double *v)
 }
 
 /* out[i] = row r of the plan applied to the columns v[c][i], i < m: first term assigned,
- * the others added in order, an empty row gives 0.0 (conformance.matvec_into). */
+ * the others added in order, an empty row gives 0.0 (kernels.matvec_into). */
 static inline void plan_row(const plan_t *p, int64_t r, double *const *v, int64_t m, double *restrict out)
 {
     int64_t a = p->start[r], b = p->start[r + 1];
@@ -285,12 +287,12 @@ static inline void plan_row(const plan_t *p, int64_t r, double *const *v, int64_
 
 #define TILE 256
 
-/* One block of conformance.sweep: for the test cases i < M (columns of X, initial states
+/* One block of kernels.sweep: for the test cases i < M (columns of X, initial states
  * estimated by the caller) and k = 0..min(rem[i] - 1, horizon), with t = starts[i] + k,
  *
  *     ya[k][r][i] = y[t][r] - ((C x)[r] (+ (D u[t])[r] if has_d)),   x <- A x + B u[t],
  *
- * the operations of conformance.predict_output and conformance.advance on each column, in
+ * the operations of kernels.predict_output and kernels.advance on each column, in
  * their order (columns are independent; tiles of TILE columns keep the data in cache).
  * X (n x M) is overwritten; ya is (horizon + 1) x ny x M, entries of test cases that ended
  * before k are left untouched. rem must be sorted in descending order.

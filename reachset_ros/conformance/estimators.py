@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ReachsetError
+from .kernels import matvec
 
 
 @dataclass(frozen=True)
@@ -213,11 +214,10 @@ def _observer(plant, y, u, m, window, gains):
         x_hat[m-window]   = pinv(C) y[m-window]        (then corrected by L_0 with the same y)
         x_hat[t+1]        = A x_hat[t] + B u[t] + L_i (y[t] - C x_hat[t] - D u[t]),  t = m-window+i
 
-    Every product is the element-wise :func:`reachset_ros.conformance.matvec`, so the
+    Every product is the element-wise :func:`reachset_ros.conformance.kernels.matvec`, so the
     result for one test case does not depend on how many are computed together (batch
     check and monitor agree to the bit). Causal: it reads only samples before m.
     """
-    from . import matvec
     G = np.array(gains, dtype=np.float64)
     n, ny = plant.A.shape[0], plant.C.shape[0]
     if G.shape != (window, n, ny):

@@ -1,13 +1,44 @@
-"""Online conformance monitor core (paper Theorem 1, checked tick by tick).
+"""Online conformance monitor core (paper Theorem 1, checked tick by tick; Def. 4 online).
 
 Each tick a new sequential test case starts (Def. 3); every test case started in the last
 k* ticks gets its k-th check ``N_k y_a <= D_k xi``. The immutable :class:`MonitorModel`
-holds what the model file says (plant, estimator, offsets per k); the mutable
-:class:`JointMonitor` holds a joint's state (last samples, nominal states of the active
-test cases): the model/data split of Pinocchio.
+holds what the model file says (plant, estimator, offsets per k); the mutable monitors
+hold the joints' state (last samples, nominal states of the active test cases): the
+model/data split of Pinocchio.
 
-The arithmetic is that of :func:`reachset_ros.conformance.sweep` (same estimator, same
-element-wise kernels), so ``reachset replay`` gives exactly ``reachset check``'s verdicts.
+The arithmetic is that of :func:`reachset_ros.conformance.kernels.sweep` (same estimator,
+same element-wise kernels of :mod:`~reachset_ros.conformance.kernels`), so ``reachset
+replay`` gives exactly ``reachset check``'s verdicts.
+
+One tick, three implementations, all here but the C source:
+
+* :meth:`Monitor._tick_numpy`, the reference: several joints with one-dimensional outputs
+  (all N_k = [1]), k*+1 ring slots of test cases per joint, vectorised over joints and
+  slots; any plant and estimator.
+* ``_tick.c`` (``reachset_monitor_tick``, loaded by :mod:`~reachset_ros.conformance.kernels`),
+  the fast path of :class:`Monitor` (:meth:`Monitor.tick`): a compiled copy of
+  :meth:`Monitor._tick_numpy` for the per-joint LWA-4P plant with the ``fd`` estimator,
+  the same floating-point operations in the same order; the ctypes mirror of its state is
+  :class:`_TickState`. Pinned bit for bit, every output and the whole state, by
+  ``test/test_monitor_kernel.py::test_kernel_equals_numpy_bit_for_bit``.
+* :meth:`JointMonitor.tick`: one joint whose output may have any dimension. With ny > 1 the
+  normals N_k change with k and have a different number q_k of rows for each k, so the
+  checks do not vectorise over the ring as :class:`Monitor`'s do; JointMonitor loops over
+  its test cases. For ny = 1 it takes a vectorised branch with the same arithmetic as
+  :meth:`Monitor._tick_numpy` (the kernels' :func:`~reachset_ros.conformance.kernels.matvec`,
+  the same estimator, the same offsets); it is not written as a call of that tick because
+  it orders its test cases newest first, where Monitor orders them by ring slot, so on an
+  exact tie of two margins it may report another test case (``step``, ``start_tick``).
+  Pinned equal to :class:`Monitor` for ny = 1 (status, margin and the reported check, bit
+  for bit) by ``test/test_monitor_kernel.py::test_joint_monitor_equals_numpy_tick``, and to
+  ``reachset check`` for ny = 1 and ny = 2 by ``test/test_conformance.py``
+  (``test_replay_equals_check_exactly_with_violations_and_gaps``,
+  ``test_multidimensional_output_plant``).
+
+What :class:`MonitorCore <reachset_ros.nodes.monitor_node.MonitorCore>` (the monitor node
+without ROS) makes of the ticks it feeds to :class:`Monitor` are events:
+:class:`TickEvent` (a tick was checked) and :class:`FaultEvent` (a fault latches the safe
+stop).
 """
 from __future__ import annotations
 
@@ -17,8 +48,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import compiled
-from . import Theorem1, _plan, advance, matvec, matvec_into, predict_output
+from . import kernels
+from .kernels import advance, matvec, matvec_into, matvec_plan, predict_output
+from .theorem1 import Theorem1
 
 
 @dataclass(frozen=True)
@@ -74,6 +106,30 @@ class TickResult:
     bound: float = 0.0          # its offset D_k xi
 
 
+@dataclass(frozen=True)
+class TickEvent:
+    """A checked tick, as the monitor node's core reports it (no safe stop by itself).
+
+    ``result`` is :meth:`Monitor.tick`'s dict of per-joint verdicts (``status``, ``margin``,
+    ``checked``, ``step``, ``start_tick``, ``deviation``, ``bound``); a ``violation``
+    status in it is what latches the safe stop.
+    """
+
+    stamp: int                  # the tick's header stamp, ns
+    result: dict
+    duration: float             # wall time of Monitor.tick, s
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """A fault of the input that latches the safe stop (``SafeStop.kind``, ``reason``, ``joint``)."""
+
+    stamp: int                  # ns
+    kind: str                   # invalid_sample | name_mismatch | stamp_backwards
+    reason: str                 # one line, for the log and SafeStop.reason
+    joint: str = ""             # the joint concerned ("" if none or not known)
+
+
 class JointMonitor:
     """Mutable state of one joint's monitor; feed it :meth:`tick` once per measurement."""
 
@@ -83,14 +139,10 @@ class JointMonitor:
 
     def reset(self):
         """Forget all test cases (after a gap, an invalid sample, or a reset service call)."""
-        n = self.mm.plant.A.shape[0]
-        self.X = np.zeros((n, 0))
-        self.ages = np.zeros(0, dtype=np.int64)
-        self.starts = np.zeros(0, dtype=np.int64)
+        self._drop()                 # also: in_segment, consecutive valid ticks so far in this segment
         hist = self.mm.estimator.history
         self.y_hist = np.zeros((hist + 1, self.mm.plant.C.shape[0]))
         self.u_hist = np.zeros((hist + 1, self.mm.plant.B.shape[1]))
-        self.in_segment = 0          # consecutive valid ticks so far in this segment
         self.last_stamp = None
         self.tick_index = -1
 
@@ -162,6 +214,7 @@ class JointMonitor:
         return res
 
     def _drop(self):
+        """End the segment: forget the test cases, count valid ticks anew."""
         n = self.mm.plant.A.shape[0]
         self.X = np.zeros((n, 0))
         self.ages = np.zeros(0, dtype=np.int64)
@@ -175,11 +228,11 @@ class Monitor:
     All joints share plant, estimator and horizon (their sets differ). Test cases live in a
     ring of k*+1 slots per joint (slot = start tick mod (k*+1)), so a tick allocates
     nothing per test case; nominal states of all joints and slots are advanced together
-    with the same element-wise kernels as :func:`reachset_ros.conformance.sweep`, hence
+    with the same element-wise kernels as :func:`reachset_ros.conformance.kernels.sweep`, hence
     verdicts equal ``reachset check``'s exactly.
 
     Two implementations of one tick share this state: the compiled kernel
-    ``reachset_ros/_tick.c`` (per-joint LWA-4P plant with the ``fd`` estimator; built by
+    ``reachset_ros/conformance/_tick.c`` (per-joint LWA-4P plant with the ``fd`` estimator; built by
     ``pip install``/colcon with ``-ffp-contract=off``) and :meth:`_tick_numpy` (any
     plant and estimator). They perform the same floating-point operations in the same
     order, so their results are bitwise equal (``test/test_monitor_kernel.py``).
@@ -232,9 +285,9 @@ class Monitor:
         """Forget all test cases and samples (the reset service, a new model)."""
         p, H, J, S = self.plant, self.estimator.history, self.J, self.S
         n, N = p.A.shape[0], self.J * self.S
-        self._planA, self._planB, self._planC = _plan(p.A), _plan(p.B), _plan(p.C)
-        self._planD = _plan(p.D) if np.any(p.D) else None
-        self._planN = _plan(self.models[0].normals[0])
+        self._planA, self._planB, self._planC = matvec_plan(p.A), matvec_plan(p.B), matvec_plan(p.C)
+        self._planD = matvec_plan(p.D) if np.any(p.D) else None
+        self._planN = matvec_plan(self.models[0].normals[0])
         self._Xbuf = np.zeros((2, n, N))
         self._cur = np.zeros(1, dtype=np.int64)
         self._BU = np.empty((p.B.shape[0], N))
@@ -273,7 +326,7 @@ class Monitor:
         k = self._k
         k["y"][:] = y
         k["u"][:] = u
-        ok = _KERNEL.reachset_monitor_tick(k["ptr"], int(stamp_ns), k["mp_ptr"], k["mm_ptr"])
+        ok = kernels.LIB.reachset_monitor_tick(k["ptr"], int(stamp_ns), k["mp_ptr"], k["mm_ptr"])
         out = k["out"]
         if ok:
             status = list(self._all_ok)
@@ -294,7 +347,7 @@ class Monitor:
                      "checked": np.empty(J, np.int64), "step": np.empty(J, np.int64),
                      "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8)}}
         o = k["out"]
-        ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)   # noqa: E731
+        ptr = kernels.ptr
         cl = self._clock
         st = _TickState(
             n=p.A.shape[0], J=J, S=S, H=self.estimator.history, dt=float(p.dt),
@@ -416,11 +469,8 @@ class _TickState(ctypes.Structure):
                     "status")])
 
 
-_KERNEL, KERNEL_PATH = compiled.LIB, compiled.PATH
-
-
 def _tick_kernel_applies(plant, estimator, joints):
     """The compiled kernel covers the per-joint LWA-4P plant (5 states, 1 in, 1 out) with ``fd``."""
-    return (_KERNEL is not None and estimator.name == "fd" and plant.A.shape == (5, 5)
+    return (kernels.LIB is not None and estimator.name == "fd" and plant.A.shape == (5, 5)
             and plant.B.shape == (5, 1) and plant.C.shape == (1, 5) and plant.D.shape == (1, 1)
             and 0 < joints <= 64)

@@ -1,11 +1,24 @@
 """Small helpers shared by the nodes: stamps, QoS profiles, parameter descriptors, main()."""
+import os
+import signal
 import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, Parameter, ParameterDescriptor, ParameterType,
+                                ParameterValue)
+from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from ..errors import ReachsetError
+
+try:
+    from rclpy.experimental import EventsExecutor
+except ImportError:  # an rclpy older than Jazzy's 7.1.x: make_executor falls back
+    EventsExecutor = None
 
 #: /safe_stop: reliable + transient local, so late subscribers (a restarted controller) see it.
 SAFE_STOP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -49,8 +62,6 @@ def spin_node(node_cls, args=None, **kwargs):
     a flag that the loop checks between callbacks, so no callback is cut off halfway (a
     tick half published, a bag half written).
     """
-    from rclpy.signals import SignalHandlerOptions
-    from ..errors import ReachsetError
     rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = node_cls(**kwargs)
@@ -74,7 +85,6 @@ def spin_node(node_cls, args=None, **kwargs):
 
 def spin_until_signal(node, executor):
     """Spin ``executor`` until SIGINT, SIGTERM or rclpy shutdown; callback errors are counted."""
-    import signal
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
@@ -98,20 +108,15 @@ def make_executor():
     docs/performance.md. ``REACHSET_EXECUTOR=single`` selects the ``SingleThreadedExecutor``, as
     does an rclpy without ``rclpy.experimental.EventsExecutor`` (older than Jazzy's 7.1.x).
     """
-    import os
-    from rclpy.executors import SingleThreadedExecutor
     if os.environ.get("REACHSET_EXECUTOR", "events") == "single":
         return SingleThreadedExecutor()
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
+    if EventsExecutor is None:
         return SingleThreadedExecutor()
     return EventsExecutor()
 
 
 def parameter_value(v):
     """An rcl_interfaces ParameterValue of a Python value (bool, int, float, str, lists)."""
-    from rcl_interfaces.msg import ParameterType, ParameterValue
     pv = ParameterValue()
     if isinstance(v, bool):
         pv.type, pv.bool_value = ParameterType.PARAMETER_BOOL, v
@@ -172,8 +177,6 @@ def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomica
 
     Returns ``(ok, reason)``; with ``atomically`` all are applied together or none.
     """
-    from rcl_interfaces.msg import Parameter
-    from rcl_interfaces.srv import SetParameters, SetParametersAtomically
     srv_type = SetParametersAtomically if atomically else SetParameters
     suffix = "set_parameters_atomically" if atomically else "set_parameters"
     client = node.create_client(srv_type, f"/{target}/{suffix}")
@@ -215,9 +218,6 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
     reason : str
         Empty on success, else one line naming ``target`` and the problem.
     """
-    from rcl_interfaces.srv import GetParameters
-    from rclpy.parameter import parameter_value_to_python
-
     names = list(names)
     client = node.create_client(GetParameters, f"/{target}/get_parameters")
     try:

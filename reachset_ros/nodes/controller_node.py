@@ -23,9 +23,11 @@ from reachset_msgs.msg import JointEstimate, JointReference, PlantInput, SafeSto
 from std_msgs.msg import Float64MultiArray
 
 from ..conformance import model as mdl
-from .. import robot
+from ..robot import dynamics as robot
 from ..errors import ReachsetError
+from ..systems import closedloop
 from ..systems.gains import check_gains
+from ..systems.plant import lwa4p_joint_plant
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 
@@ -139,12 +141,10 @@ class ControllerNode(Node):
         gains = gains_from(values, self.joints)
         u_max = u_max_array(values.get("u_max", self.get_parameter("u_max").value), len(self.joints))
         u_ff = float(values.get("u_ff_bound", self.get_parameter("u_ff_bound").value))
-        from ..systems import closedloop
-        from ..systems.plant import lwa4p_joint_plant
         for i, j in enumerate(self.joints):
             js = model.joints.get(j) if model is not None else None
             if js is not None:
-                ok, why, _ = check_gains(gains[j], js, float(u_max[i]), u_ff, model.plant)
+                ok, why, _ = check_gains(gains[j], js, u_max=float(u_max[i]), u_ff=u_ff, plant=model.plant)
                 if not ok:
                     raise ReachsetError(f"joint {j}: {why}")
                 continue
@@ -271,14 +271,14 @@ class ControllerNode(Node):
         else:
             ref = self.reference_at(stamp, late)
             if ref is None:
-                qd_ref, qdot_ref, qdd_ref = q.copy(), np.zeros_like(q), np.zeros_like(q)
+                q_d, qd_d, qdd_d = q.copy(), np.zeros_like(q), np.zeros_like(q)
             else:
-                qd_ref, qdot_ref, qdd_ref = ref
+                q_d, qd_d, qdd_d = ref
             u = np.empty(len(self.joints))
             for i, j in enumerate(self.joints):
                 g = self.gains[j]
-                u[i] = (qdd_ref[i] + g.omega ** 2 * (qd_ref[i] - q[i])
-                        + 2 * g.zeta * g.omega * (qdot_ref[i] - qd[i]))
+                u[i] = (qdd_d[i] + g.omega ** 2 * (q_d[i] - q[i])
+                        + 2 * g.zeta * g.omega * (qd_d[i] - qd[i]))
                 if g.controller == "compensated":
                     u[i] -= d[i]
         # full-robot feedback linearization: joints not controlled here get u_p = 0

@@ -14,6 +14,7 @@ phase's real-time factor (simulated / wall time) is reported.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import rclpy
@@ -26,7 +27,9 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .. import launch
-from ..robot import JOINT_NAMES
+from ..conformance import model as mdl
+from ..robot.dynamics import JOINT_NAMES
+from ..synthesis.config import config_path
 from .common import SAFE_STOP_QOS, set_remote_parameters, spin_until_complete, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
@@ -116,9 +119,12 @@ class DemoDriver(Node):
 
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
-             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None, margin=1.0,
-             settle=3.0):
-    """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock)."""
+             seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None,
+             inflation=1.0, settle=3.0):
+    """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock).
+
+    ``inflation``: the monitor checks against the identified sets scaled by ``1 + inflation``
+    (the model's ``inflation``)."""
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or INITIAL_GAINS
     out = {"phases": [], "real_time_factor": {}}
@@ -136,7 +142,6 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         procs.append(launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir))
         procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
                                   workdir))
-        from ..synthesis import config_path
         cfg = config_path()
         demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
         extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else [""]
@@ -200,16 +205,15 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         # let the transient of the live gain change settle before monitoring starts: the
         # switch itself (estimates and commands jump) is not a motion the training covered
         timed("settle", settle)
-        # the monitor gets the model with the demo's safety margin (inflation of the sets)
-        from ..conformance import model as mdl
-        from dataclasses import replace
+        # the monitor gets the model with the demo's inflation of the sets (a safety factor)
         monitor_model = workdir / "monitor_model.yaml"
-        mdl.save(replace(mdl.load(res.result.model_file), inflation=float(margin)), monitor_model)
+        mdl.save(replace(mdl.load(res.result.model_file), inflation=float(inflation)), monitor_model)
         ok, why = set_remote_parameters(driver, "monitor_node", {"model_file": str(monitor_model)})
         if not ok:
             raise RuntimeError(f"monitor refused the model: {why}")
         out["monitor_model"] = str(monitor_model)
-        out["margin"] = float(margin)
+        out["inflation"] = float(inflation)
+        out["margin"] = out["inflation"]   # deprecated name of "inflation", kept for readers of old results
         # 4. monitored run, fault injected (the monitor starts fresh with the new model)
         reset = driver.call(Trigger, "/monitor_node/reset", Trigger.Request(), timeout=30.0)
         if not reset.success:

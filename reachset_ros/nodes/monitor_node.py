@@ -30,9 +30,9 @@ from std_srvs.srv import Trigger
 
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
-from ..conformance import Theorem1
+from ..conformance.monitor import FaultEvent, Monitor, MonitorModel, TickEvent
+from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
-from ..conformance.monitor import Monitor, MonitorModel
 from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
@@ -48,7 +48,9 @@ class MonitorCore:
     """Pairing, fault detection and the monitor, without ROS (so it is testable and reusable).
 
     ``add_y``/``add_u`` take (stamp, names, values); completed ticks are processed in stamp
-    order and returned as events: ("tick", stamp, result) or ("fault", stamp, kind, reason, joint).
+    order and returned as a list of events: a :class:`~reachset_ros.conformance.monitor.TickEvent`
+    per checked tick (its ``result`` is :meth:`Monitor.tick`'s dict) or a
+    :class:`~reachset_ros.conformance.monitor.FaultEvent` (``kind``, ``reason``, ``joint``).
 
     What each kind of bad input becomes (docs/reliability.md, "Nodes"):
 
@@ -104,17 +106,20 @@ class MonitorCore:
         return self.add("u", stamp, names, values)
 
     def _pick(self, kind, names, values, stamp):
+        """The monitored joints' values in ``self.joints`` order, or None and the FaultEvent."""
         what = TOPIC[kind]
         if len(values) != len(names):
-            return None, ("invalid_sample", f"{what} at {stamp} ns has {len(names)} names but {len(values)} values", "")
+            return None, FaultEvent(stamp, "invalid_sample",
+                                    f"{what} at {stamp} ns has {len(names)} names but {len(values)} values")
         idx = {}
         for i, n in enumerate(names):
             if n in idx and n in self.wanted:
-                return None, ("name_mismatch", f"{what} at {stamp} ns names joint {n} twice", n)
+                return None, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns names joint {n} twice", n)
             idx[n] = i
         missing = [j for j in self.joints if j not in idx]
         if missing:
-            return None, ("name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0]}", missing[0])
+            return None, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0]}",
+                                    missing[0])
         if len(idx) > len(self.joints):
             self.counters["extra_names_" + kind] += 1
         return np.array([values[idx[j]] for j in self.joints], dtype=np.float64), None
@@ -125,8 +130,8 @@ class MonitorCore:
         self.topic_last[kind] = stamp   # after a jump back, the new clock is the reference
         if last is not None and stamp < last:
             self.counters["stamp_backwards_" + kind] += 1
-            return [("fault", stamp, "stamp_backwards",
-                     f"{TOPIC[kind]} stamp went backwards: {stamp} ns after {last} ns", "")]
+            return [FaultEvent(stamp, "stamp_backwards",
+                               f"{TOPIC[kind]} stamp went backwards: {stamp} ns after {last} ns")]
         if last is not None and stamp == last:
             self.counters["duplicate_" + kind] += 1
             return events
@@ -134,9 +139,9 @@ class MonitorCore:
             self.counters["stale_" + kind] += 1
             return events
         vals, err = self._pick(kind, names, values, stamp)
-        if err:
+        if err is not None:
             self.counters["rejected_" + kind] += 1
-            return [("fault", stamp) + err]
+            return [err]
         entry = self.pending.setdefault(stamp, {})
         entry[kind] = vals
         if "y" in entry and "u" in entry:
@@ -163,15 +168,15 @@ class MonitorCore:
         self.window.append((stamp, y, u))
         t0 = time.perf_counter()
         res = self.monitor.tick(stamp, y, u)
-        res["duration"] = time.perf_counter() - t0
+        duration = time.perf_counter() - t0
         self.counters["ticks"] += 1
         self.ticks_since_reset += 1
         bad = [j for j, s in enumerate(res["status"]) if s == "invalid"]
         if bad:
             self.counters["invalid_ticks"] += 1
             j = self.joints[bad[0]]
-            return ("fault", stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)
-        return ("tick", stamp, res)
+            return FaultEvent(stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)
+        return TickEvent(stamp, res, duration)
 
 
 class MonitorNode(Node):
@@ -275,13 +280,12 @@ class MonitorNode(Node):
 
     def handle_events(self, events):
         for ev in events:
-            if ev[0] == "fault":
-                _, stamp, kind, reason, joint = ev
-                self.trigger(stamp, kind, reason, joint)
+            if isinstance(ev, FaultEvent):
+                self.trigger(ev.stamp, ev.kind, ev.reason, ev.joint)
                 continue
-            _, stamp, res = ev
+            stamp, res = ev.stamp, ev.result
             self.last_tick_wall = time.monotonic()
-            self.publish_status(stamp, res)
+            self.publish_status(ev)
             viol = [j for j, s in enumerate(res["status"]) if s == "violation"]
             if viol:
                 j = viol[0]
@@ -291,7 +295,8 @@ class MonitorNode(Node):
                              self.core.joints[j], int(res["step"][j]),
                              int(res["start_tick"][j]), float(res["deviation"][j]), float(res["bound"][j]))
 
-    def publish_status(self, stamp, res):
+    def publish_status(self, ev: TickEvent):
+        stamp, res = ev.stamp, ev.result
         m = ConformanceStatus()
         to_stamp(m.header.stamp, stamp)
         m.conformant = bool(all(s in ("ok", "gap_reset") for s in res["status"]))
@@ -303,7 +308,7 @@ class MonitorNode(Node):
         m.margin = [float(x) if np.isfinite(x) else (1e300 if x > 0 else -1e300) for x in res["margin"]]
         m.deviation = [float(x) for x in res["deviation"]]
         m.tightest_step = [int(x) for x in res["step"]]
-        m.check_duration = float(res["duration"])
+        m.check_duration = float(ev.duration)
         m.model_id = self.model_id
         self.status_pub.publish(m)
 

@@ -12,7 +12,7 @@ from reachset_msgs.msg import JointEstimate, PlantInput
 from sensor_msgs.msg import JointState
 
 from ..errors import ReachsetError
-from ..robot import JOINT_NAMES
+from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 

@@ -16,7 +16,7 @@ from reachset_msgs.msg import JointReference
 from sensor_msgs.msg import JointState
 
 from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
-from ..robot import JOINT_NAMES
+from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
 
 

@@ -12,10 +12,11 @@ For axis i and ``q`` in a sub-box ``B`` of ``Q`` this holds if
 
 with ``mbar_ij(B) >= |M_ij(q)|`` and ``psibar_i(B) >= |psi_i(q, qd)|`` for all ``q`` in ``B``,
 ``qd`` in ``dQ`` (``|tau_i| <= sum_j |M_ij| |u_j| + |psi_i|``). The bounds come from an
-**interval-arithmetic recursive Newton-Euler algorithm** (:func:`interval_rnea`) on the
-Pinocchio model: columns of ``M`` are RNEA with ``qd = 0``, no gravity, ``qdd = e_j``
-(armature included); ``psi`` is RNEA with ``qd`` in ``dQ``, gravity, ``qdd = 0``, plus the
-joint friction (monotone in ``qd``, bounded exactly). ``Q`` is split into sub-boxes
+**interval-arithmetic recursive Newton-Euler algorithm**
+(:func:`reachset_ros.robot.interval.interval_rnea`) on the Pinocchio model: columns of ``M``
+are RNEA with ``qd = 0``, no gravity, ``qdd = e_j`` (armature included); ``psi`` is RNEA
+with ``qd`` in ``dQ``, gravity, ``qdd = 0``, plus the joint friction (monotone in ``qd``,
+bounded exactly). ``Q`` is split into sub-boxes
 (domain splitting, the paper splits into four intervals per axis) to limit the
 over-approximation of interval arithmetic. (*) over all sub-boxes is a set of linear
 constraints in ``a``; the largest symmetric ``U_p`` is found by lexicographic max-min
@@ -44,300 +45,15 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 from scipy.optimize import linprog
 
-from .. import robot as rb
 from ..errors import InfeasibleError, ReachsetError
+from .dynamics import TABLE1_QD_MAX, TABLE1_Q_MAX, TABLE1_TAU_MAX, create_data, load_model, mass_matrix, psi
+from .interval import interval_rnea, joint_axis, next_up
 
-__all__ = ["interval_rnea", "mass_psi_bounds", "InputLimits", "input_limits", "check_limits",
+__all__ = ["mass_psi_bounds", "InputLimits", "input_limits", "check_limits",
            "sampled_worst_torque"]
-
-_INF = np.inf
-
-
-# ---------------------------------------------------------------------- interval arithmetic
-def _down(x):
-    return np.nextafter(x, -_INF)
-
-
-def _up(x):
-    return np.nextafter(x, _INF)
-
-
-class _IA:
-    """Interval arrays with first-order information: rows ``0`` value, ``1..d`` d/dq_l.
-
-    ``lo``, ``hi`` have shape ``(1 + d, N)``: the value enclosure over the box and enclosures
-    of the partial derivatives with respect to the ``d`` split coordinates (interval
-    forward-mode differentiation). Every operation rounds outwards.
-    """
-
-    __slots__ = ("lo", "hi")
-
-    def __init__(self, lo, hi):
-        self.lo, self.hi = lo, hi
-
-    @classmethod
-    def const(cls, x, R, N):
-        lo = np.zeros((R, N))
-        lo[0] = x
-        return cls(lo, lo.copy())
-
-    def __add__(self, o):
-        return _IA(_down(self.lo + o.lo), _up(self.hi + o.hi))
-
-    def __sub__(self, o):
-        return _IA(_down(self.lo - o.hi), _up(self.hi - o.lo))
-
-    def neg(self):
-        return _IA(-self.hi, -self.lo)
-
-    @staticmethod
-    def _m(alo, ahi, blo, bhi):
-        p0, p1, p2, p3 = alo * blo, alo * bhi, ahi * blo, ahi * bhi
-        return (_down(np.minimum(np.minimum(p0, p1), np.minimum(p2, p3))),
-                _up(np.maximum(np.maximum(p0, p1), np.maximum(p2, p3))))
-
-    def __mul__(self, o):
-        vlo, vhi = self._m(self.lo[:1], self.hi[:1], o.lo[:1], o.hi[:1])
-        if self.lo.shape[0] == 1:
-            return _IA(vlo, vhi)
-        g1lo, g1hi = self._m(self.lo[1:], self.hi[1:], o.lo[:1], o.hi[:1])
-        g2lo, g2hi = self._m(self.lo[:1], self.hi[:1], o.lo[1:], o.hi[1:])
-        return _IA(np.vstack([vlo, _down(g1lo + g2lo)]), np.vstack([vhi, _up(g1hi + g2hi)]))
-
-    def scale(self, c):
-        """Point scalar ``c`` times this interval."""
-        c = float(c)
-        if c >= 0:
-            return _IA(_down(c * self.lo), _up(c * self.hi))
-        return _IA(_down(c * self.hi), _up(c * self.lo))
-
-
-def _sum(terms, R, N):
-    if not terms:
-        return _IA.const(0.0, R, N)
-    acc = terms[0]
-    for t in terms[1:]:
-        acc = acc + t
-    return acc
-
-
-class _Vec:
-    """An interval 3-vector (three :class:`_IA`)."""
-
-    __slots__ = ("c",)
-
-    def __init__(self, comps):
-        self.c = list(comps)
-
-    @classmethod
-    def point(cls, v, R, N):
-        v = np.asarray(v, float)
-        return cls([_IA.const(v[i], R, N) for i in range(3)])
-
-    def __add__(self, o):
-        return _Vec([a + b for a, b in zip(self.c, o.c)])
-
-    def cross(self, o):
-        a, b = self.c, o.c
-        return _Vec([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-    def pmat(self, M):
-        """Point 3x3 matrix times this interval vector."""
-        M = np.asarray(M, float)
-        R, N = self.c[0].lo.shape
-        return _Vec([_sum([self.c[k].scale(M[r, k]) for k in range(3) if M[r, k] != 0.0], R, N)
-                     for r in range(3)])
-
-    def pcross(self, p):
-        """Point vector ``p`` cross this interval vector (exact zeros skipped)."""
-        p = np.asarray(p, float)
-        a = self.c
-        R, N = a[0].lo.shape
-
-        def term(coef, x):
-            return [x.scale(coef)] if coef != 0.0 else []
-        return _Vec([_sum(term(p[1], a[2]) + term(-p[2], a[1]), R, N),
-                     _sum(term(p[2], a[0]) + term(-p[0], a[2]), R, N),
-                     _sum(term(p[0], a[1]) + term(-p[1], a[0]), R, N)])
-
-
-class _Rot:
-    """Rotation of a revolute joint ``R(q) = R0 Raxis(q)`` with interval cos/sin."""
-
-    def __init__(self, R0, axis, cq, sq):
-        self.R0 = np.asarray(R0, float)
-        self.axis = axis
-        self.cq, self.sq = cq, sq
-
-    def _axis_rot(self, v, transpose):
-        c, s = self.cq, self.sq
-        if transpose:                       # R_axis(q)^T v
-            s = s.neg()
-        i, j, k = {"z": (0, 1, 2), "x": (1, 2, 0), "y": (2, 0, 1)}[self.axis]
-        comps = [None] * 3
-        vi, vj = v.c[i], v.c[j]
-        comps[i] = c * vi - s * vj
-        comps[j] = s * vi + c * vj
-        comps[k] = v.c[k]
-        return _Vec(comps)
-
-    def apply(self, v):
-        """``R v`` (child frame -> parent frame)."""
-        return self._axis_rot(v, False).pmat(self.R0)
-
-    def apply_t(self, v):
-        """``R^T v`` (parent frame -> child frame)."""
-        return self._axis_rot(v.pmat(self.R0.T), True)
-
-
-def _cos_sin(lo, hi):
-    """Interval enclosures of cos and sin over [lo, hi] (arrays), widened by 1e-15."""
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-
-    def enc(f, ph):   # maxima of f at ph + 2 pi k, minima at ph + pi + 2 pi k
-        a, b = f(lo), f(hi)
-        mn, mx = np.minimum(a, b), np.maximum(a, b)
-        kmax = np.ceil((lo - ph) / (2 * np.pi) - 1e-12)
-        has_max = ph + 2 * np.pi * kmax <= hi + 1e-12
-        kmin = np.ceil((lo - ph - np.pi) / (2 * np.pi) - 1e-12)
-        has_min = ph + np.pi + 2 * np.pi * kmin <= hi + 1e-12
-        mx = np.where(has_max, 1.0, mx)
-        mn = np.where(has_min, -1.0, mn)
-        return np.maximum(mn - 1e-15, -1.0), np.minimum(mx + 1e-15, 1.0)
-
-    return enc(np.cos, 0.0), enc(np.sin, np.pi / 2)
-
-
-def _joint_axis(jmodel):
-    name = jmodel.shortname()
-    axes = {"JointModelRZ": "z", "JointModelRX": "x", "JointModelRY": "y"}
-    if name not in axes:
-        raise ReachsetError(f"input limits: joint type {name} is not supported (revolute X/Y/Z only)")
-    return axes[name]
-
-
-def _rnea_ia(model, q_lo, q_hi, qd_lo, qd_hi, qdd, gravity, dims):
-    """Interval RNEA; returns per joint an :class:`_IA` with gradient rows for ``dims``."""
-    pm = model.pin_model
-    n = pm.nv
-    N = q_lo.shape[0]
-    R = 1 + len(dims)
-    (clo, chi), (slo, shi) = _cos_sin(q_lo, q_hi)
-    g = np.asarray(pm.gravity.linear, float) if gravity else np.zeros(3)
-
-    def trig(k):
-        c = _IA.const(0.0, R, N)
-        s = _IA.const(0.0, R, N)
-        c.lo[0], c.hi[0] = clo[:, k], chi[:, k]
-        s.lo[0], s.hi[0] = slo[:, k], shi[:, k]
-        if k in dims:
-            r = 1 + dims.index(k)
-            c.lo[r], c.hi[r] = -shi[:, k], -slo[:, k]      # d cos = -sin
-            s.lo[r], s.hi[r] = clo[:, k], chi[:, k]        # d sin = cos
-        return c, s
-
-    def ivec(lo, hi):
-        x = _IA.const(0.0, R, N)
-        x.lo[0], x.hi[0] = lo, hi
-        return x
-
-    w, dw, a, Rot, F, Nm = {}, {}, {}, {}, {}, {}
-    w[0], dw[0] = _Vec.point(np.zeros(3), R, N), _Vec.point(np.zeros(3), R, N)
-    a[0] = _Vec.point(-g, R, N)
-    for i in range(1, pm.njoints):
-        lam = pm.parents[i]
-        axis = _joint_axis(pm.joints[i])
-        k = pm.joints[i].idx_v
-        pl = pm.jointPlacements[i]
-        Ri = _Rot(pl.rotation, axis, *trig(k))
-        Rot[i] = Ri
-        p = np.asarray(pl.translation, float)
-        ai = {"x": 0, "y": 1, "z": 2}[axis]
-        qdi = ivec(np.broadcast_to(qd_lo[k], (N,)), np.broadcast_to(qd_hi[k], (N,)))
-        wl = Ri.apply_t(w[lam])
-        wi = _Vec(list(wl.c))
-        wi.c[ai] = wi.c[ai] + qdi
-        jw = _Vec.point(np.zeros(3), R, N)
-        jw.c[ai] = qdi
-        dwi = Ri.apply_t(dw[lam]) + wl.cross(jw)
-        dwi.c[ai] = dwi.c[ai] + _IA.const(qdd[k], R, N)
-        acc = a[lam] + dw[lam].cross(_Vec.point(p, R, N)) + w[lam].cross(w[lam].cross(_Vec.point(p, R, N)))
-        ai_vec = Ri.apply_t(acc)
-        inert = pm.inertias[i]
-        m, c, Ic = float(inert.mass), np.asarray(inert.lever, float), np.asarray(inert.inertia, float)
-        Cv = _Vec.point(c, R, N)
-        ac = ai_vec + dwi.cross(Cv) + wi.cross(wi.cross(Cv))
-        F[i] = _Vec([x.scale(m) for x in ac.c])
-        Nm[i] = dwi.pmat(Ic) + wi.cross(wi.pmat(Ic))
-        w[i], dw[i], a[i] = wi, dwi, ai_vec
-    f = {i: F[i] for i in range(1, pm.njoints)}
-    nn = {i: Nm[i] + F[i].pcross(np.asarray(pm.inertias[i].lever, float)) for i in range(1, pm.njoints)}
-    tau = [None] * n
-    for i in range(pm.njoints - 1, 0, -1):
-        ai = {"x": 0, "y": 1, "z": 2}[_joint_axis(pm.joints[i])]
-        k = pm.joints[i].idx_v
-        tau[k] = nn[i].c[ai] + _IA.const(float(pm.armature[k]) * qdd[k], R, N)
-        lam = pm.parents[i]
-        if lam > 0:
-            fR = Rot[i].apply(f[i])
-            f[lam] = f[lam] + fR
-            p = np.asarray(pm.jointPlacements[i].translation, float)
-            nn[lam] = nn[lam] + Rot[i].apply(nn[i]) + fR.pcross(p)
-    return tau
-
-
-def interval_rnea(model, q_lo, q_hi, qd_lo, qd_hi, qdd, gravity=True, mean_value=True):
-    """Interval enclosure of the joint torques of the rigid-body dynamics (no friction).
-
-    ``tau = M(q) qdd + C(q, qd) qd + g(q)`` (Pinocchio's ``rnea``, armature included) for every
-    ``q`` in ``[q_lo, q_hi]`` and ``qd`` in ``[qd_lo, qd_hi]``; ``qdd`` is a point.
-
-    With ``mean_value`` the enclosure is the intersection of the natural interval extension
-    and the mean-value form ``tau(c) + sum_l dtau/dq_l(B) [-r_l, r_l]`` (centre ``c``, radii
-    ``r``; the derivative enclosures from interval forward-mode differentiation), whose
-    over-approximation shrinks quadratically with the box size.
-
-    Parameters
-    ----------
-    model : reachset_ros.robot.RobotModel
-    q_lo, q_hi : array_like, (N, n)
-        A batch of N position boxes.
-    qd_lo, qd_hi : array_like, (n,)
-    qdd : array_like, (n,)
-    gravity : bool
-
-    Returns
-    -------
-    lo, hi : ndarray, (N, n)
-    """
-    n = model.nv
-    q_lo = np.atleast_2d(np.asarray(q_lo, float))
-    q_hi = np.atleast_2d(np.asarray(q_hi, float))
-    N = q_lo.shape[0]
-    qd_lo = np.broadcast_to(np.asarray(qd_lo, float), (n,))
-    qd_hi = np.broadcast_to(np.asarray(qd_hi, float), (n,))
-    qdd = np.asarray(qdd, float)
-    wide = [j for j in range(n) if np.any(q_hi[:, j] > q_lo[:, j])]
-    if not mean_value or not wide:
-        tau = _rnea_ia(model, q_lo, q_hi, qd_lo, qd_hi, qdd, gravity, [])
-        return np.column_stack([t.lo[0] for t in tau]), np.column_stack([t.hi[0] for t in tau])
-    tau = _rnea_ia(model, q_lo, q_hi, qd_lo, qd_hi, qdd, gravity, wide)
-    c = 0.5 * (q_lo + q_hi)
-    # radius covering [lo, hi] from c in floating point
-    r = np.maximum(_up(q_hi - c), _up(c - q_lo))
-    t0 = _rnea_ia(model, c, c, qd_lo, qd_hi, qdd, gravity, [])
-    lo, hi = np.empty((N, n)), np.empty((N, n))
-    for k in range(n):
-        mlo, mhi = t0[k].lo[0], t0[k].hi[0]
-        for ri, j in enumerate(wide):
-            glo, ghi = tau[k].lo[1 + ri], tau[k].hi[1 + ri]
-            bound = _up(np.maximum(np.abs(glo), np.abs(ghi)) * r[:, j])
-            mlo, mhi = _down(mlo - bound), _up(mhi + bound)
-        lo[:, k] = np.maximum(mlo, tau[k].lo[0])
-        hi[:, k] = np.minimum(mhi, tau[k].hi[0])
-    return lo, hi
 
 
 def _friction_bound(model, qd_lo, qd_hi):
@@ -347,7 +63,7 @@ def _friction_bound(model, qd_lo, qd_hi):
     v = np.maximum(np.abs(fr.viscous * qd_lo), np.abs(fr.viscous * qd_hi))
     c = np.abs(fr.coulomb) * np.maximum(np.abs(np.tanh(qd_lo / fr.coulomb_velocity)),
                                         np.abs(np.tanh(qd_hi / fr.coulomb_velocity)))
-    return _up(_up(v + c) + np.abs(fr.offset))
+    return next_up(next_up(v + c) + np.abs(fr.offset))
 
 
 def invariant_joints(model):
@@ -356,7 +72,7 @@ def invariant_joints(model):
     out = []
     if pm.njoints > 1 and pm.parents[1] == 0:
         try:
-            axis = _joint_axis(pm.joints[1])
+            axis = joint_axis(pm.joints[1])
         except ReachsetError:
             return out
         ax = pm.jointPlacements[1].rotation[:, {"x": 0, "y": 1, "z": 2}[axis]]
@@ -415,7 +131,7 @@ def mass_psi_bounds(model, q_max, qd_max, splits=4, chunk=4096):
             mlo, mhi = interval_rnea(model, lo, hi, np.zeros(n), np.zeros(n), e, gravity=False)
             mbar[s:s + chunk, :, j] = np.maximum(np.abs(mlo), np.abs(mhi))
         plo, phi = interval_rnea(model, lo, hi, -qd_max, qd_max, np.zeros(n), gravity=True)
-        psibar[s:s + chunk] = _up(np.maximum(np.abs(plo), np.abs(phi)) + fric)
+        psibar[s:s + chunk] = next_up(np.maximum(np.abs(plo), np.abs(phi)) + fric)
     return mbar, psibar, blo, bhi, fixed
 
 
@@ -448,7 +164,6 @@ class TrigBounds:
     """
 
     def __init__(self, model, dims, check_points=200, seed=0):
-        import pinocchio as pin
         self.model = model
         pm = model.pin_model
         n = pm.nv
@@ -503,7 +218,6 @@ class TrigBounds:
         return M, g
 
     def _verify(self, m, seed):
-        import pinocchio as pin
         pm = self.model.pin_model
         data = pm.createData()
         rng = np.random.default_rng(seed)
@@ -525,11 +239,10 @@ class TrigBounds:
 
     def coriolis_bound(self, qd_max):
         qd = np.abs(np.asarray(qd_max, float))
-        return _up(np.einsum("ijk,j,k->i", self.Gbar, qd, qd))
+        return next_up(np.einsum("ijk,j,k->i", self.Gbar, qd, qd))
 
     def box_bounds(self, centers, radii):
         """``mbar (N, n, n)``, ``gbar (N, n)`` and the per-dimension contributions (for splitting)."""
-        import pinocchio as pin
         pm = self.model.pin_model
         data = pm.createData()
         n, dims = self.n, self.dims
@@ -687,11 +400,11 @@ def input_limits(model=None, tau_max=None, q_max=None, qd_max=None, splits=4, me
     InfeasibleError
         If even ``U_p = {0}`` violates the torque limits (gravity and friction alone exceed T).
     """
-    model = model or rb.load_model()
+    model = model or load_model()
     n = model.nv
-    tau_max = np.broadcast_to(np.asarray(rb.TABLE1_TAU_MAX if tau_max is None else tau_max, float), (n,)).copy()
-    q_max = np.broadcast_to(np.asarray(rb.TABLE1_Q_MAX if q_max is None else q_max, float), (n,)).copy()
-    qd_max = np.broadcast_to(np.asarray(rb.TABLE1_QD_MAX if qd_max is None else qd_max, float), (n,)).copy()
+    tau_max = np.broadcast_to(np.asarray(TABLE1_TAU_MAX if tau_max is None else tau_max, float), (n,)).copy()
+    q_max = np.broadcast_to(np.asarray(TABLE1_Q_MAX if q_max is None else q_max, float), (n,)).copy()
+    qd_max = np.broadcast_to(np.asarray(TABLE1_QD_MAX if qd_max is None else qd_max, float), (n,)).copy()
     if np.any(tau_max <= 0) or not np.all(np.isfinite(tau_max)):
         raise ReachsetError("tau_max must be positive")
     if np.any(q_max < 0) or np.any(qd_max < 0) or not np.all(np.isfinite(np.r_[q_max, qd_max])):
@@ -712,14 +425,14 @@ def input_limits(model=None, tau_max=None, q_max=None, qd_max=None, splits=4, me
     elif method == "taylor":
         dims = [j for j in range(n) if j not in fixed]
         tb = TrigBounds(model, dims)
-        base = _up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
+        base = next_up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
         blo, bhi = _boxes(-q_max, q_max, spl, fixed)
 
         def bounds_of(lo, hi):
             c = 0.5 * (lo + hi)
-            r = np.maximum(_up(hi - c), _up(c - lo))
+            r = np.maximum(next_up(hi - c), next_up(c - lo))
             mb, gb, cm, cg = tb.box_bounds(c, r)
-            return mb, _up(gb + base), cm, cg
+            return mb, next_up(gb + base), cm, cg
 
         mbar, psibar, contM, contg = bounds_of(blo, bhi)
         w = _weights(weights, mbar, tau_max, n)
@@ -804,16 +517,16 @@ def check_limits(model, a, tau_max=None, q_max=None, qd_max=None, splits=4):
     on some sub-box (not necessarily that the limits are violated: refine with more splits).
     """
     n = model.nv
-    tau_max = np.broadcast_to(np.asarray(rb.TABLE1_TAU_MAX if tau_max is None else tau_max, float), (n,))
-    q_max = np.broadcast_to(np.asarray(rb.TABLE1_Q_MAX if q_max is None else q_max, float), (n,))
-    qd_max = np.broadcast_to(np.asarray(rb.TABLE1_QD_MAX if qd_max is None else qd_max, float), (n,))
+    tau_max = np.broadcast_to(np.asarray(TABLE1_TAU_MAX if tau_max is None else tau_max, float), (n,))
+    q_max = np.broadcast_to(np.asarray(TABLE1_Q_MAX if q_max is None else q_max, float), (n,))
+    qd_max = np.broadcast_to(np.asarray(TABLE1_QD_MAX if qd_max is None else qd_max, float), (n,))
     fixed = invariant_joints(model)
     dims = [j for j in range(n) if j not in fixed]
     tb = TrigBounds(model, dims)
-    base = _up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
+    base = next_up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
     blo, bhi = _boxes(-q_max, q_max, np.broadcast_to(np.asarray(splits, int), (n,)), fixed)
     c = 0.5 * (blo + bhi)
-    r = np.maximum(_up(bhi - c), _up(c - blo))
+    r = np.maximum(next_up(bhi - c), next_up(c - blo))
     mbar, gbar, _, _ = tb.box_bounds(c, r)
     a = np.broadcast_to(np.asarray(a, float), (n,))
     worst = (np.einsum("bij,j->bi", mbar, a) + gbar + base).max(axis=0)
@@ -831,7 +544,7 @@ def sampled_worst_torque(model, a, q_max, qd_max, samples=20000, seed=0):
     if samples <= 0:
         return np.full(n, np.nan)
     rng = np.random.default_rng(seed)
-    data = rb.create_data(model)
+    data = create_data(model)
     q_max = np.broadcast_to(np.asarray(q_max, float), (n,))
     qd_max = np.broadcast_to(np.asarray(qd_max, float), (n,))
     a = np.asarray(a, float)
@@ -839,7 +552,7 @@ def sampled_worst_torque(model, a, q_max, qd_max, samples=20000, seed=0):
     for _ in range(int(samples)):
         q = rng.uniform(-q_max, q_max)
         qd = qd_max * rng.choice([-1.0, 1.0], n)
-        M = rb.mass_matrix(model, data, q)
-        ps = rb.psi(model, data, q, qd)
+        M = mass_matrix(model, data, q)
+        ps = psi(model, data, q, qd)
         worst = np.maximum(worst, np.abs(M) @ a + np.abs(ps))
     return worst

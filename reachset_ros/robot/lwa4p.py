@@ -7,7 +7,7 @@ logged motor torque command, units unknown) and ``time.csv`` (N, seconds, 4 ms s
 Identification (:func:`fit_nominal`): the nominal model M_hat, psi_hat used by the
 controller's feedback linearization (paper eq. 6) and by :func:`import_runs` for
 ``u_p = M_hat(q)^-1 (s * tau_logged - psi_hat(q, qd))`` is fitted on runs 1-70 only, with
-:func:`reachset_ros.robot.identify`; runs 71-100 are held out. Preprocessing
+:func:`reachset_ros.robot.inertial_id.identify_inertial`; runs 71-100 are held out. Preprocessing
 (:class:`Preprocessing`): zero-phase 4th-order Butterworth low-pass (``cutoff_hz``) on the
 velocities and on the logged torques of each run, accelerations by central differences of
 the filtered velocities, the torque of row k paired with the motion sample ``k + lag``
@@ -22,9 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import robot as rb
+from scipy.signal import butter, filtfilt
+
 from ..atomic import write_yaml
+from ..bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
 from ..errors import ReachsetError
+from .dynamics import (RobotModel, create_data, inverse_fl, load_model, logged_to_torque,
+                       min_mass_eigenvalue, model_params_dict)
+from .inertial_id import BaseParameters, Identification, identify_inertial, predict_logged, torque_gram
 
 DT = 0.004
 #: Stamp of the first sample of the first imported run: 2018-10-01T00:00:00Z (IROS 2018).
@@ -153,7 +158,6 @@ class Preprocessing:
 
 
 def _lowpass(x, prep: Preprocessing):
-    from scipy.signal import butter, filtfilt
     b, a = butter(prep.order, prep.cutoff_hz / (0.5 / DT))
     return filtfilt(b, a, x, axis=0)
 
@@ -181,8 +185,8 @@ def stacked_samples(runs, prep: Preprocessing = Preprocessing()):
 class NominalFit:
     """Result of :func:`fit_nominal`: the identified model and the placeholder baseline."""
 
-    identified: rb.Identification
-    placeholder: rb.Identification
+    identified: Identification
+    placeholder: Identification
     runs: tuple
     prep: Preprocessing
     samples: int
@@ -205,19 +209,19 @@ def fit_nominal(root, runs, prep: Preprocessing = Preprocessing(), prior=None,
     prior : RobotModel, optional
         Prior / placeholder model (default: the shipped URDF).
     method, prior_weight, scale_weight
-        See :func:`reachset_ros.robot.identify`.
+        See :func:`reachset_ros.robot.inertial_id.identify_inertial`.
     """
     recs = read_runs(root, runs)
-    prior = prior or rb.load_model()
-    data = rb.create_data(prior)
+    prior = prior or load_model()
+    data = create_data(prior)
     Q, QD, QDD, U, _ = stacked_samples(recs, prep)
-    gram = rb.torque_gram(prior, data, Q, QD, QDD, U)
-    base = rb.BaseParameters.from_model(prior)
-    ident = rb.identify(prior, gram, method=method, prior_weight=prior_weight,
-                        scale_weight=scale_weight, base=base)
-    ph = rb.identify(prior, gram, method="placeholder", base=base)
-    mdata = rb.create_data(ident.model)
-    mineig = rb.min_mass_eigenvalue(ident.model, mdata, Q[::10])
+    gram = torque_gram(prior, data, Q, QD, QDD, U)
+    base = BaseParameters.from_model(prior)
+    ident = identify_inertial(prior, gram, method=method, prior_weight=prior_weight,
+                              scale_weight=scale_weight, base=base)
+    ph = identify_inertial(prior, gram, method="placeholder", base=base)
+    mdata = create_data(ident.model)
+    mineig = min_mass_eigenvalue(ident.model, mdata, Q[::10])
     if not mineig > 0:
         raise ReachsetError(f"identified mass matrix is not positive definite (min eigenvalue "
                             f"{mineig:.3g}); use --method lmi")
@@ -226,14 +230,14 @@ def fit_nominal(root, runs, prep: Preprocessing = Preprocessing(), prior=None,
                        "scale_weight": scale_weight})
 
 
-def torque_rms(model: rb.RobotModel, runs, prep: Preprocessing = Preprocessing()) -> dict:
+def torque_rms(model: RobotModel, runs, prep: Preprocessing = Preprocessing()) -> dict:
     """RMS error per joint of the logged torques predicted by ``model`` on ``runs``.
 
     Returns ``{"filtered": [...], "raw": [...], "samples": K}``: against the low-pass
     filtered logged torque (the fitting target) and against the raw logged torque.
     """
     Q, QD, QDD, Uf, Ur = stacked_samples(runs, prep)
-    pred = rb.predict_logged(model, rb.create_data(model), Q, QD, QDD)
+    pred = predict_logged(model, create_data(model), Q, QD, QDD)
     return {"filtered": np.sqrt(np.mean((pred - Uf) ** 2, axis=0)).tolist(),
             "raw": np.sqrt(np.mean((pred - Ur) ** 2, axis=0)).tolist(),
             "samples": int(len(Q))}
@@ -255,7 +259,7 @@ def nominal_document(fit: NominalFit, command: str, data_dir: str) -> dict:
            "settings": {k: v for k, v in ident.settings.items()
                         if k in ("prior_weight", "scale_weight", "min_armature", "iterations",
                                  "converged")}}
-    doc.update(rb.model_params_dict(ident.model))
+    doc.update(model_params_dict(ident.model))
     doc["base_parameters"] = {"names": list(ident.base.names),
                               "values": [float(x) for x in ident.beta]}
     doc["fit"] = {"rms_logged": [float(x) for x in ident.rms],
@@ -293,7 +297,7 @@ def default_nominal_path() -> Path:
     if here.is_file():
         return here
     try:
-        from ament_index_python.packages import get_package_share_directory
+        from ament_index_python.packages import get_package_share_directory  # optional: only in a ROS install
         p = Path(get_package_share_directory("reachset_ros")) / "config" / NOMINAL_FILE
         if p.is_file():
             return p
@@ -302,12 +306,12 @@ def default_nominal_path() -> Path:
     return here
 
 
-def load_nominal(path=None) -> rb.RobotModel:
+def load_nominal(path=None) -> RobotModel:
     """The identified nominal model (default: the shipped :func:`default_nominal_path`)."""
     path = Path(path) if path is not None else default_nominal_path()
     if not path.is_file():
         raise ReachsetError(f"{path}: nominal model not found (run reachset fit-lwa4p)")
-    return rb.load_model(params=path)
+    return load_model(params=path)
 
 
 # --------------------------------------------------------------------------- bag import
@@ -322,16 +326,16 @@ def run_start_stamps(runs, start_ns: int = DEFAULT_START_NS, gap_ns: int = DEFAU
     return starts
 
 
-def plant_inputs(model: rb.RobotModel, run: Run, data=None) -> np.ndarray:
+def plant_inputs(model: RobotModel, run: Run, data=None) -> np.ndarray:
     """``u_p[k] = M_hat(q_k)^-1 (s * tau_k - psi_hat(q_k, qd_k))`` for k < N-1 (paper eq. 6
     inverted, with the measured q, qd of tick k, as the controller computes it)."""
-    data = data or rb.create_data(model)
-    tau = rb.logged_to_torque(model, run.tau)
-    return np.stack([rb.inverse_fl(model, data, run.q[k], run.qd[k], tau[k])
+    data = data or create_data(model)
+    tau = logged_to_torque(model, run.tau)
+    return np.stack([inverse_fl(model, data, run.q[k], run.qd[k], tau[k])
                      for k in range(len(tau))])
 
 
-def import_runs(root, runs, out, model: rb.RobotModel | None = None,
+def import_runs(root, runs, out, model: RobotModel | None = None,
                 start_ns: int = DEFAULT_START_NS, gap_ns: int = DEFAULT_GAP_NS,
                 storage: str = "mcap") -> dict:
     """Write the recordings ``runs`` to the rosbag2 bag ``out`` (atomically).
@@ -349,7 +353,6 @@ def import_runs(root, runs, out, model: rb.RobotModel | None = None,
     Returns a summary ``{"runs", "samples", "plant_inputs", "first_stamp_ns",
     "last_stamp_ns"}``.
     """
-    from ..bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
     out = Path(out)
     if out.exists():
         raise ReachsetError(f"{out}: output bag already exists")
@@ -358,7 +361,7 @@ def import_runs(root, runs, out, model: rb.RobotModel | None = None,
     recs = read_runs(root, runs)
     model = model or load_nominal()
     names = list(model.joint_names)
-    data = rb.create_data(model)
+    data = create_data(model)
     starts = run_start_stamps(recs, start_ns, gap_ns)
     n_js = n_pi = 0
     last = None

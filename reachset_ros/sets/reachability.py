@@ -280,7 +280,7 @@ def truncated_sum(A, W, N):
     return Zonotope(c, np.hstack(G) if G else np.zeros((W.dim, 0)))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class InvariantSet:
     """Result of :func:`invariant_outer`.
 
@@ -381,7 +381,8 @@ def invariant_outer(A, G, C=None, eps=EPS, method="auto", center=None):
         inner0 = truncated_sum(A, W0, s)
         inner = Zonotope(Cm @ zc, Cm @ inner0.generators)
         outer = Zonotope(Cm @ zc, Cm @ inner0.generators / (1.0 - a))
-        return InvariantSet(outer, inner, s, a, eps, "rakovic", n, rho)
+        return InvariantSet(outer=outer, inner=inner, s=s, a=a, eps=eps, method="rakovic", reachable_dim=n,
+                            spectral_radius=rho)
     if method != "norm":
         raise ValueError(f"unknown method {method!r}")
     r = V.shape[1]
@@ -394,7 +395,8 @@ def invariant_outer(A, G, C=None, eps=EPS, method="auto", center=None):
     tail = (a / (1.0 - a)) * rho_all * Mr if r else np.zeros((Cm.shape[0], 0))
     inner = Zonotope(Cm @ zc, inner_G)
     outer = Zonotope(Cm @ zc, np.hstack([inner_G, tail]))
-    return InvariantSet(outer, inner, s, a, eps, "norm", r, rho)
+    return InvariantSet(outer=outer, inner=inner, s=s, a=a, eps=eps, method="norm", reachable_dim=r,
+                        spectral_radius=rho)
 
 
 def _abs_sums(Ar, Gr, Mr, eps, keep=False, block=16, max_block=512):
@@ -441,7 +443,7 @@ def _abs_sums(Ar, Gr, Mr, eps, keep=False, block=16, max_block=512):
             b *= 2
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RadiusInfo:
     """Details of :func:`radius_coefficients`: the truncated (inner) coefficients and ``s``, ``a``."""
 
@@ -517,5 +519,6 @@ def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_
     K_inner = K_inner + HD
     Kw, Kv = K[:, :gw], K[:, gw:]
     if return_info:
-        return Kw, Kv, RadiusInfo(K_inner[:, :gw], K_inner[:, gw:], s, a, V.shape[1], rho)
+        return Kw, Kv, RadiusInfo(Kw_inner=K_inner[:, :gw], Kv_inner=K_inner[:, gw:], s=s, a=a,
+                                  reachable_dim=V.shape[1], spectral_radius=rho)
     return Kw, Kv

@@ -21,6 +21,7 @@ import math
 from itertools import combinations
 
 import numpy as np
+from scipy.optimize import linprog
 
 __all__ = ["Zonotope", "halfspace_normals", "box", "MAX_FACETS"]
 
@@ -599,8 +600,6 @@ def halfspace_normals(G, max_facets=MAX_FACETS, tol=1e-10):
 
 def _lp_contains(G, dv, tol, scale):
     """LP point containment: ``min t`` s.t. ``|G beta - dv| <= tol*scale``, ``|beta_j| <= t``."""
-    from scipy.optimize import linprog
-
     n, m = G.shape
     gs = np.abs(G).max()
     Gn, b, tau = G / gs, dv / gs, tol * scale / gs  # HiGHS ignores entries below 1e-9: normalise

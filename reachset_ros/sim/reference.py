@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import robot as rb
 from ..errors import ReachsetError
+from ..robot.dynamics import TABLE1_Q_MAX, U_REF, load_model
 
 QUINTIC_VEL = 1.875                 # max s'(r)
 QUINTIC_ACC = 10.0 / np.sqrt(3.0)   # max |s''(r)|
@@ -46,8 +46,8 @@ _BOX = []
 def _default_box():
     """Table I box intersected with the shipped URDF's position limits."""
     if not _BOX:
-        m = rb.load_model()
-        _BOX.append((np.maximum(-rb.TABLE1_Q_MAX, m.lower), np.minimum(rb.TABLE1_Q_MAX, m.upper)))
+        m = load_model()
+        _BOX.append((np.maximum(-TABLE1_Q_MAX, m.lower), np.minimum(TABLE1_Q_MAX, m.upper)))
     return tuple(a.copy() for a in _BOX[0])
 
 
@@ -78,7 +78,7 @@ class ReferenceConfig:
     q_min: np.ndarray = field(default_factory=lambda: _default_box()[0])
     q_max: np.ndarray = field(default_factory=lambda: _default_box()[1])
     qd_max: object = 0.7
-    qdd_max: object = rb.U_REF
+    qdd_max: object = U_REF
     kinds: tuple = ("trapezoidal", "quintic")
     dwell: tuple = (0.0, 0.5)
     min_fraction: float = 0.2

@@ -38,8 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from .. import robot as rb
 from ..errors import ReachsetError
+from ..robot.dynamics import Friction, RobotModel, create_data, load_model, mass_matrix, psi
+from ..robot.model_error import ModelError, add_payload, perturb
 
 DT = 0.004
 RK4_STABILITY = 2.5  # |h * lambda| kept below this (RK4's real-axis limit is 2.785)
@@ -72,9 +73,9 @@ class SimConfig:
         Stamp of tick 0.
     """
 
-    robot: rb.RobotModel = field(default_factory=rb.load_model)
-    model_error: rb.ModelError | None = None
-    friction: rb.Friction | None = None
+    robot: RobotModel = field(default_factory=load_model)
+    model_error: ModelError | None = None
+    friction: Friction | None = None
     dt: float = DT
     substeps: int = 4
     quantization: float = 3.5e-5
@@ -90,24 +91,24 @@ class SimConfig:
                 raise ReachsetError(f"simulator: {f} must be >= 0")
 
     @classmethod
-    def ideal(cls, robot: rb.RobotModel | None = None, **kw) -> "SimConfig":
+    def ideal(cls, robot: RobotModel | None = None, **kw) -> "SimConfig":
         """Truth = model, no quantization, no noise (unless given in ``kw``)."""
         for f in ("quantization", "position_noise", "velocity_noise"):
             kw.setdefault(f, 0.0)
-        return cls(robot=robot or rb.load_model(), **kw)
+        return cls(robot=robot or load_model(), **kw)
 
     @classmethod
-    def realistic(cls, robot: rb.RobotModel | None = None, seed: int = 0, **kw) -> "SimConfig":
+    def realistic(cls, robot: RobotModel | None = None, seed: int = 0, **kw) -> "SimConfig":
         """Typical mismatch (:meth:`ModelError.typical`), 3.5e-5 rad encoder, noise
         1e-5 rad / 2e-3 rad/s."""
-        kw.setdefault("model_error", rb.ModelError.typical(seed))
+        kw.setdefault("model_error", ModelError.typical(seed))
         kw.setdefault("position_noise", 1e-5)
         kw.setdefault("velocity_noise", 2e-3)
-        return cls(robot=robot or rb.load_model(), **kw)
+        return cls(robot=robot or load_model(), **kw)
 
-    def true_robot(self) -> rb.RobotModel:
+    def true_robot(self) -> RobotModel:
         """The simulated ("true") robot."""
-        truth = rb.perturb(self.robot, self.model_error)
+        truth = perturb(self.robot, self.model_error)
         if self.friction is not None:
             truth = truth.replace(friction=self.friction)
         return truth
@@ -214,7 +215,7 @@ class SimState:
     tau_pending: np.ndarray    # torque applied during [t_k, t_{k+1})
     substeps: int
     faults: list
-    truth: rb.RobotModel
+    truth: RobotModel
     data: pin.Data
     payload_models: dict       # fault id -> truth with that payload (and the earlier ones)
     frozen: dict               # joint -> (q, qd) held
@@ -258,7 +259,7 @@ class SimulatedArm:
         return self.config.robot.nv
 
     @property
-    def true_robot(self) -> rb.RobotModel:
+    def true_robot(self) -> RobotModel:
         """The true robot in effect now (payload faults included)."""
         return self.state.truth if self.state else self._truth0
 
@@ -298,7 +299,7 @@ class SimulatedArm:
         ``h * max eig(M^-1 D) <= RK4_STABILITY``, ``D = diag(viscous + coulomb / v_c)``."""
         fr = truth.friction
         Dm = np.abs(fr.viscous) + np.abs(fr.coulomb) / fr.coulomb_velocity
-        M = rb.mass_matrix(truth, data, q)
+        M = mass_matrix(truth, data, q)
         lam = float(np.max(np.abs(np.linalg.eigvals(np.linalg.solve(M, np.diag(Dm))))))
         need = math.ceil(self.config.dt * lam / RK4_STABILITY)
         return max(self.config.substeps, need)
@@ -315,9 +316,9 @@ class SimulatedArm:
         q0 = np.zeros(n) if q0 is None else np.array(q0, dtype=np.float64).reshape(n)
         qd0 = np.zeros(n) if qd0 is None else np.array(qd0, dtype=np.float64).reshape(n)
         truth = self._truth0
-        data = rb.create_data(truth)
+        data = create_data(truth)
         if tau0 is None:
-            tau0 = rb.psi(truth, data, q0, qd0)
+            tau0 = psi(truth, data, q0, qd0)
         tau0 = np.array(tau0, dtype=np.float64).reshape(n)
         self.state = SimState(
             k=0, q=q0.copy(), qd=qd0.copy(), q_prev=q0.copy(), qd_prev=qd0.copy(),
@@ -343,7 +344,7 @@ class SimulatedArm:
         if isinstance(fault, Payload):
             prev = [f for f in st.faults[:-1] if isinstance(f, Payload)]
             base = st.payload_models[id(prev[-1])] if prev else self._truth0
-            st.payload_models[id(fault)] = rb.add_payload(base, fault.mass, fault.com)
+            st.payload_models[id(fault)] = add_payload(base, fault.mass, fault.com)
         if isinstance(fault, NaNSamples):
             st.nan_left[id(fault)] = int(fault.count)
         return self.onset_stamp(fault)

@@ -40,7 +40,7 @@ def _ro(a):
     return a
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ClosedLoop:
     """Closed-loop error system (reference and feedforward zero).
 
@@ -152,12 +152,14 @@ def close_loop(plant, observer, controller, errors=("q", "qd")):
     C = np.vstack([Hz[sel], Fz])
     Dv = np.vstack([Hv[sel], Fv])
     names = tuple(f"{nm}_hat" for nm in errors) + tuple(plant.input_names)
-    return ClosedLoop(_ro(A), _ro(Bw), _ro(Bv), _ro(C), _ro(Dv), _ro(Bw @ plant.Gw), _ro(Bv @ plant.Gv),
-                      _ro(Dv @ plant.Gv), _ro(Fz), _ro(Fv), names, len(sel), plant, observer, controller)
+    return ClosedLoop(A=_ro(A), Bw=_ro(Bw), Bv=_ro(Bv), C=_ro(C), Dv=_ro(Dv), Ew=_ro(Bw @ plant.Gw),
+                      Ev=_ro(Bv @ plant.Gv), DEv=_ro(Dv @ plant.Gv), Fz=_ro(Fz), Fv=_ro(Fv),
+                      output_names=names, n_error=len(sel), plant=plant, observer=observer,
+                      controller=controller)
 
 
 # ---------------------------------------------------------------------- stability
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Stability:
     """Stability of the closed loop on the disturbances' reachable subspace.
 
@@ -200,7 +202,8 @@ def stability(cl, tol=1e-10):
                f"subspace the disturbances reach ({len(bad)} eigenvalue(s) on or outside the unit circle)")
     else:
         msg = f"closed loop stable: spectral radius {rho:.6g} on the {V.shape[1]}-dimensional reachable subspace"
-    return Stability(not bad, rho, V.shape[1], cl.n_states, bad, msg)
+    return Stability(stable=not bad, spectral_radius=rho, reachable_dim=V.shape[1], n_states=cl.n_states,
+                     unstable_eigenvalues=bad, message=msg)
 
 
 # ---------------------------------------------------------------------- linear coefficients
@@ -228,7 +231,7 @@ def radius_coefficients(cl, H=None, eps=reach.EPS, return_info=False):
     Kv : ndarray, (q, gv)
     info : RadiusInfo, only with ``return_info``
     """
-    return reach.radius_coefficients(cl.A, cl.Ew, cl.Ev, cl.C, None, cl.DEv, H=H, eps=eps,
+    return reach.radius_coefficients(cl.A, cl.Ew, cl.Ev, cl.C, Dw=None, Dv=cl.DEv, H=H, eps=eps,
                                      return_info=return_info)
 
 
@@ -263,7 +266,7 @@ def center_coefficients(cl, tol=1e-10):
 
 
 # ---------------------------------------------------------------------- analysis
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Analysis:
     """Reachable tracking error ``R_e`` and reachable input ``R_u`` of a closed loop.
 
@@ -344,11 +347,13 @@ def analyze(cl, alpha_w, alpha_v, u_ff=0.0, c_w=None, c_v=None, eps=reach.EPS, s
     except reach.NotStableError as e:
         st = stability(cl)
         if st.stable:  # spectral radius below one, but too close to it for the tail bound
-            st = Stability(False, st.spectral_radius, st.reachable_dim, st.n_states, (), str(e))
-        return Analysis(False, st)
-    st = Stability(True, info.spectral_radius, info.reachable_dim, cl.n_states, (),
-                   f"closed loop stable: spectral radius {info.spectral_radius:.6g} on the "
-                   f"{info.reachable_dim}-dimensional reachable subspace")
+            st = Stability(stable=False, spectral_radius=st.spectral_radius, reachable_dim=st.reachable_dim,
+                           n_states=st.n_states, unstable_eigenvalues=(), message=str(e))
+        return Analysis(stable=False, stability=st)
+    st = Stability(stable=True, spectral_radius=info.spectral_radius, reachable_dim=info.reachable_dim,
+                   n_states=cl.n_states, unstable_eigenvalues=(),
+                   message=f"closed loop stable: spectral radius {info.spectral_radius:.6g} on the "
+                           f"{info.reachable_dim}-dimensional reachable subspace")
     rad = Kw @ aw + Kv @ av
     rad_in = info.Kw_inner @ aw + info.Kv_inner @ av
     cen = np.zeros(cl.C.shape[0])
@@ -373,9 +378,10 @@ def analyze(cl, alpha_w, alpha_v, u_ff=0.0, c_w=None, c_v=None, eps=reach.EPS, s
         G = np.diag(rad)
         re_set = Zonotope(cen[:ne], G[:ne, :ne])
         ru_set = Zonotope(cen[ne:], G[ne:, ne:]) + Zonotope(np.zeros(uff.size), np.diag(uff))
-    return Analysis(True, st, cen[:ne], rad[:ne], float(2 * rad[:ne].sum()), ru_of(rad),
-                    rad_in[:ne], float(2 * rad_in[:ne].sum()), ru_of(rad_in), info.s, info.a,
-                    re_set, ru_set)
+    return Analysis(stable=True, stability=st, re_center=cen[:ne], re_radius=rad[:ne],
+                    re_norm=float(2 * rad[:ne].sum()), ru=ru_of(rad), re_radius_inner=rad_in[:ne],
+                    re_norm_inner=float(2 * rad_in[:ne].sum()), ru_inner=ru_of(rad_in), s=info.s, a=info.a,
+                    re_set=re_set, ru_set=ru_set)
 
 
 # ---------------------------------------------------------------------- simulation

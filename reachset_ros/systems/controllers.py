@@ -23,6 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_discrete_are
+
+from .observers import kalman_filter, paper_lqg_covariances
 
 __all__ = ["LinearController", "static_feedback", "compensated_feedback", "lqr_gain", "lqr",
            "lqg", "control_input"]
@@ -116,8 +119,8 @@ def static_feedback(omega, zeta):
     LinearController
     """
     _check(omega, zeta)
-    return LinearController([[omega ** 2, 2 * zeta * omega]], ("q", "qd"), "static",
-                            dict(omega=float(omega), zeta=float(zeta)))
+    return LinearController(K=[[omega ** 2, 2 * zeta * omega]], estimate_names=("q", "qd"), name="static",
+                            params=dict(omega=float(omega), zeta=float(zeta)))
 
 
 def compensated_feedback(omega, zeta):
@@ -131,8 +134,8 @@ def compensated_feedback(omega, zeta):
     LinearController
     """
     _check(omega, zeta)
-    return LinearController([[omega ** 2, 2 * zeta * omega, 1.0]], ("q", "qd", "d"), "compensated",
-                            dict(omega=float(omega), zeta=float(zeta)))
+    return LinearController(K=[[omega ** 2, 2 * zeta * omega, 1.0]], estimate_names=("q", "qd", "d"),
+                            name="compensated", params=dict(omega=float(omega), zeta=float(zeta)))
 
 
 def lqr_gain(A, B, Q, R):
@@ -141,8 +144,6 @@ def lqr_gain(A, B, Q, R):
     ``P`` solves the DARE (``scipy.linalg.solve_discrete_are``); ``u = -K x`` minimises
     ``sum x^T Q x + u^T R u`` (paper eq. ``LQR``).
     """
-    from scipy.linalg import solve_discrete_are
-
     A, B = np.atleast_2d(A), np.atleast_2d(B)
     Q, R = np.atleast_2d(np.asarray(Q, float)), np.atleast_2d(np.asarray(R, float))
     P = solve_discrete_are(A, B, Q, R)
@@ -169,7 +170,8 @@ def lqr(model, Q, r):
     if np.any(np.linalg.eigvalsh((R + R.T) / 2) <= 0):
         raise ValueError(f"LQR input weight r must be positive definite, got {r}")
     K = lqr_gain(model.A, model.B, Q, R)
-    return LinearController(K, tuple(model.state_names), "lqr", dict(r=np.asarray(r).tolist()))
+    return LinearController(K=K, estimate_names=tuple(model.state_names), name="lqr",
+                            params=dict(r=np.asarray(r).tolist()))
 
 
 def lqg(model, r, alpha_w, alpha_v, Q=None, form="predictor", squared=True):
@@ -196,8 +198,6 @@ def lqg(model, r, alpha_w, alpha_v, Q=None, form="predictor", squared=True):
     observer : LinearObserver
     controller : LinearController
     """
-    from .observers import kalman_filter, paper_lqg_covariances
-
     if Q is None:
         if model.n_states != 4:
             raise ValueError("the paper's default Q = diag(1000, 1000, 0.01, r) needs a 4-state model")

@@ -16,6 +16,8 @@ from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 
+__all__ = ["Gains", "check_gains", "DEFAULTS"]
+
 DEFAULTS = dict(observer="hg", controller="static", omega=10.0, zeta=1.0, h1=15.0, h2=30.0,
                 l1=57.1, l2=103.3, l3=18.1, eps=0.01)
 
@@ -66,8 +68,8 @@ class Gains:
 
     def build_observer(self, dt=0.004):
         if self.observer == "hg":
-            return high_gain_observer(self.h1, self.h2, self.eps, dt)
-        return extended_state_observer(self.l1, self.l2, self.l3, self.eps, dt)
+            return high_gain_observer(self.h1, self.h2, eps=self.eps, dt=dt)
+        return extended_state_observer(self.l1, self.l2, self.l3, eps=self.eps, dt=dt)
 
     def build_controller(self):
         if self.controller == "static":

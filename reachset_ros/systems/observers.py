@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_discrete_are
 
 __all__ = ["LinearObserver", "ObserverState", "bilinear", "high_gain_observer",
            "extended_state_observer", "kalman_filter", "paper_lqg_covariances",
@@ -225,8 +226,9 @@ def high_gain_observer(h1, h2, eps=0.01, dt=0.004):
     By = np.array([[h1 / eps], [h2 / eps ** 2]])
     Bc = np.hstack([By, np.zeros((2, 1))])
     Ad, Bd, Cd, Dd = bilinear(Ac, Bc, np.eye(2), np.zeros((2, 2)), dt)
-    return LinearObserver(Ad, Bd[:, :1], Bd[:, 1:], Cd, Dd[:, :1], Dd[:, 1:], ("q", "qd"), dt,
-                          "hg", dict(h1=float(h1), h2=float(h2), eps=float(eps)))
+    return LinearObserver(Ao=Ad, Bo_y=Bd[:, :1], Bo_u=Bd[:, 1:], Co=Cd, Do_y=Dd[:, :1], Do_u=Dd[:, 1:],
+                          estimate_names=("q", "qd"), dt=dt, name="hg",
+                          params=dict(h1=float(h1), h2=float(h2), eps=float(eps)))
 
 
 def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
@@ -275,7 +277,8 @@ def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
     params = dict(l1=float(l1), l2=float(l2), l3=float(l3), eps=float(eps), u_input=u_input)
     names = ("q", "qd", "d")
     if u_input == "current":
-        return LinearObserver(Ad, Bd[:, :1], Bd[:, 1:], Cd, Dd[:, :1], Dd[:, 1:], names, dt, "eso", params)
+        return LinearObserver(Ao=Ad, Bo_y=Bd[:, :1], Bo_u=Bd[:, 1:], Co=Cd, Do_y=Dd[:, :1], Do_u=Dd[:, 1:],
+                              estimate_names=names, dt=dt, name="eso", params=params)
     if u_input != "previous":
         raise ValueError(f"u_input must be 'previous' or 'current', got {u_input!r}")
     # internal state [xi; u_prev]: the Tustin system is driven by u_p[k-1]
@@ -283,7 +286,8 @@ def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
     By = np.vstack([Bd[:, :1], [[0.0]]])
     Bu = np.vstack([np.zeros((3, 1)), [[1.0]]])
     Co = np.hstack([Cd, Dd[:, 1:]])
-    return LinearObserver(Ao, By, Bu, Co, Dd[:, :1], np.zeros((3, 1)), names, dt, "eso", params)
+    return LinearObserver(Ao=Ao, Bo_y=By, Bo_u=Bu, Co=Co, Do_y=Dd[:, :1], Do_u=np.zeros((3, 1)),
+                          estimate_names=names, dt=dt, name="eso", params=params)
 
 
 def kalman_filter(model, Sw, Sv, form="predictor"):
@@ -308,8 +312,6 @@ def kalman_filter(model, Sw, Sv, form="predictor"):
     LinearObserver
         Estimates named like the model's states, inputs ``(y, u)``.
     """
-    from scipy.linalg import solve_discrete_are
-
     A, B, C, D = model.A, model.B, model.C, model.D
     n, p = A.shape[0], C.shape[0]
     Sw = np.atleast_2d(np.asarray(Sw, dtype=float))
@@ -330,8 +332,8 @@ def kalman_filter(model, Sw, Sv, form="predictor"):
         Ao, By, Bu = A @ Co, A @ M, B - A @ M @ D
     else:
         raise ValueError(f"unknown Kalman filter form {form!r} (use 'predictor' or 'current')")
-    return LinearObserver(Ao, By, Bu, Co, Dy, Du, tuple(model.state_names), model.dt, "kalman",
-                          dict(form=form))
+    return LinearObserver(Ao=Ao, Bo_y=By, Bo_u=Bu, Co=Co, Do_y=Dy, Do_u=Du, estimate_names=tuple(model.state_names),
+                          dt=model.dt, name="kalman", params=dict(form=form))
 
 
 def paper_lqg_covariances(model, alpha_w, alpha_v, squared=True):

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..sets.zonotope import Zonotope
+
 __all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model"]
 
 
@@ -114,14 +116,12 @@ class LinearPlant:
 
     def W(self, alpha_w, c_w=None):
         """Process-disturbance zonotope ``(c_W, G'_W diag(alpha_W))`` (paper eq. ``discreteSystem``)."""
-        from ..sets.zonotope import Zonotope
         a = _alpha(alpha_w, self.Gw.shape[1], "alpha_w")
         c = np.zeros(self.n_states) if c_w is None else np.asarray(c_w, float)
         return Zonotope(c, self.Gw * a)
 
     def V(self, alpha_v, c_v=None):
         """Measurement-noise zonotope ``(c_V, G'_V diag(alpha_V))`` (paper eq. ``discreteSystem``)."""
-        from ..sets.zonotope import Zonotope
         a = _alpha(alpha_v, self.Gv.shape[1], "alpha_v")
         c = np.zeros(self.n_outputs) if c_v is None else np.asarray(c_v, float)
         return Zonotope(c, self.Gv * a)

@@ -1,0 +1,241 @@
+"""Deterministic element-wise kernels of the nominal predictions, and the batch sweep.
+
+Paper Sec. II-B (Defs. 2-3) and III-B. For sequential test cases (Def. 3) starting at
+every valid tick m of a recording, the deviation of the measurement from the nominal
+prediction (eq. 12)
+
+    y_a^(m)[k] = y[m+k] - y_*^(m)[k],   y_*^(m)[k] = C x_*^(m)[k] + D u[m+k],
+    x_*^(m)[0] = x0(m) (an :class:`~reachset_ros.conformance.estimators.Estimator`),
+    x_*^(m)[k+1] = A x_*^(m)[k] + B u[m+k],
+
+is computed here: :func:`sweep` runs all test cases of a recording for k = 0..k* and
+hands each block of deviations to a visitor (Theorem 1's reductions in
+:mod:`~reachset_ros.conformance.theorem1`, the checks of
+:mod:`~reachset_ros.conformance.validation`).
+
+All arithmetic on the nominal trajectories uses the element-wise :func:`matvec`, so the
+batch sweep here and the online monitor (:mod:`reachset_ros.conformance.monitor`), which
+advances one tick at a time, produce bitwise identical deviations and hence identical
+verdicts.
+
+The compiled kernels (``reachset_ros/conformance/_tick.c``) are loaded here with ctypes:
+the one place that loads them. Two functions, both exact copies of numpy code paths of
+this package (same floating-point operations in the same order, compiled with
+``-ffp-contract=off``), so results are bitwise equal whether or not the kernel is used:
+
+* ``reachset_sweep_block``: one block of :func:`sweep` (numpy: :func:`_sweep_block`);
+* ``reachset_monitor_tick``: one tick of :class:`reachset_ros.conformance.monitor.Monitor`
+  (numpy: ``Monitor._tick_numpy``).
+
+``LIB`` is None when the shared library was not built (e.g. no C compiler at install time)
+or the environment variable ``REACHSET_NO_KERNEL`` is set; callers then use numpy.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib.machinery
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ReachsetError
+
+# ------------------------------------------------------------------ the compiled kernels
+_P = ctypes.c_void_p
+_I = ctypes.c_int64
+
+
+def _load():
+    if os.environ.get("REACHSET_NO_KERNEL"):
+        return None, None
+    here = Path(__file__).resolve().parent
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = here / f"_tick{suffix}"
+        if path.exists():
+            lib = ctypes.CDLL(str(path))
+            lib.reachset_monitor_tick.argtypes = [_P, _I, _P, _P]
+            lib.reachset_monitor_tick.restype = _I
+            lib.reachset_sweep_block.argtypes = [_P, _P, _P, _P, _I, _I, _I, _I, _P, _P, _P, _P, _I, _I, _P, _P]
+            lib.reachset_sweep_block.restype = _I
+            return lib, str(path)
+    return None, None
+
+
+#: The loaded shared library (None: not built, or ``REACHSET_NO_KERNEL`` set) and its path.
+LIB, LIB_PATH = _load()
+
+
+def ptr(a):
+    """ctypes pointer to the data of a C-contiguous numpy array."""
+    return a.ctypes.data_as(_P)
+
+
+# ------------------------------------------------------------------ deterministic kernels
+_PLANS = {}
+
+
+def matvec_plan(M):
+    """The plan of ``M`` for :func:`matvec_into`: per row, the (column, factor) pairs of its
+    nonzero entries in order (cached by the value of ``M``)."""
+    key = (M.shape, M.tobytes())
+    plan = _PLANS.get(key)
+    if plan is None:
+        plan = tuple(tuple((j, float(M[i, j])) for j in range(M.shape[1]) if M[i, j] != 0.0)
+                     for i in range(M.shape[0]))
+        if len(_PLANS) > 256:
+            _PLANS.clear()
+        _PLANS[key] = plan
+    return plan
+
+
+def matvec(M, X):
+    """``M @ X`` for ``X`` of shape (n, N) with a fixed, length-independent summation order.
+
+    Element-wise multiply-adds over the nonzero entries of ``M`` in row-major order
+    (a factor of exactly 1.0 is skipped, which does not change any result); the result for
+    one column does not depend on how many columns are processed together, unlike BLAS.
+    Used by every code path that computes nominal predictions, so batch and online
+    computations agree to the bit.
+    """
+    M = np.asarray(M, dtype=np.float64)
+    return matvec_into(matvec_plan(M), X, np.empty((M.shape[0], X.shape[1])))
+
+
+def matvec_into(plan, X, out):
+    """:func:`matvec` with a precomputed ``matvec_plan(M)`` into a preallocated ``out`` (same arithmetic)."""
+    for i, row in enumerate(plan):
+        if not row:
+            out[i] = 0.0
+            continue
+        j, a = row[0]
+        if a == 1.0:
+            out[i] = X[j]
+        else:
+            np.multiply(a, X[j], out=out[i])
+        for j, a in row[1:]:
+            if a == 1.0:
+                out[i] += X[j]
+            else:
+                out[i] += a * X[j]
+    return out
+
+
+def predict_output(plant, X, U):
+    """Nominal output ``C X + D U`` (eq. 3), columns = test cases."""
+    Y = matvec(plant.C, X)
+    if np.any(plant.D):
+        Y = Y + matvec(plant.D, U)
+    return Y
+
+
+def advance(plant, X, U):
+    """Nominal state step ``A X + B U`` (eq. 3), columns = test cases."""
+    return matvec(plant.A, X) + matvec(plant.B, U)
+
+
+def as_2d(a):
+    a = np.asarray(a, dtype=np.float64)
+    return a[:, None] if a.ndim == 1 else a
+
+
+# ------------------------------------------------------------------ test cases
+def test_case_starts(segments, history):
+    """Start ticks m of sequential test cases and the end of each one's segment."""
+    starts, ends = [], []
+    for s, e in segments:
+        if e - (s + history) > 0:
+            starts.append(np.arange(s + history, e))
+            ends.append(np.full(e - s - history, e))
+    if not starts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(starts), np.concatenate(ends)
+
+
+def require_horizon(series, history, horizon, bags):
+    """Exit cleanly unless some test case of every joint reaches step k* = ``horizon``.
+
+    A test case starting at tick m needs ``history`` ticks before it and ``horizon`` after
+    it, all in one segment (consecutive valid ticks).
+    """
+    need = history + horizon + 1
+    for name, s in series.items():
+        longest = max((b - a for a, b in s.segments), default=0)
+        if longest < need:
+            raise ReachsetError(f"{', '.join(map(str, bags))}: joint {name}: too few samples for horizon {horizon}: "
+                                f"the longest run of consecutive valid ticks has {longest}, a test case needs {need}")
+
+
+def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
+    """Run all sequential test cases for k = 0..horizon and call ``visit`` per step.
+
+    Parameters
+    ----------
+    plant : LinearPlant
+    estimator : Estimator
+    y, u : ndarray, shape (T, ny) and (T, nu)
+    segments : sequence of (start, stop)
+        Test cases never span two segments; (m, k) is visited only if m + k < stop.
+    horizon : int
+        k*, the last step checked.
+    visit : callable ``visit(k, m, t, ya)``
+        ``m``: start ticks, ``t = m + k``: measurement ticks, ``ya``: (ny, M_k) deviations.
+        Called once per k and block of test cases; visitors accumulate.
+    block : int
+        Test cases processed together (memory locality only; results are identical).
+
+    Returns
+    -------
+    int : number of test cases (start ticks).
+    """
+    y, u = as_2d(y), as_2d(u)
+    starts, ends = test_case_starts(segments, estimator.history)
+    if len(starts) == 0:
+        return 0
+    order = np.argsort(-(ends - starts), kind="stable")
+    starts, rem = starts[order], (ends - starts)[order]
+    # Blocks of test cases keep the working set in cache; every column's arithmetic is the
+    # same whatever the block, so results do not depend on the block size.
+    for b in range(0, len(starts), block):
+        _sweep_block(plant, estimator, y, u, starts[b:b + block], rem[b:b + block], horizon, visit)
+    return len(starts)
+
+
+def _sweep_block(plant, estimator, y, u, starts, rem, horizon, visit):
+    X = estimator.estimate(plant, y, u, starts)
+    if LIB is not None and plant.A.shape[0] <= 64 and plant.B.shape[1] <= 64:
+        return _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X)
+    for k in range(horizon + 1):
+        Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
+        if Mk == 0:
+            break
+        X = X[:, :Mk]
+        m = starts[:Mk]
+        t = m + k
+        U = u[t].T
+        ya = y[t].T - predict_output(plant, X, U)
+        visit(k, m, t, ya)
+        X = advance(plant, X, U)
+
+
+def _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X):
+    """:func:`_sweep_block` with the deviations computed by the compiled kernel (bitwise equal)."""
+    M, ny = len(starts), plant.C.shape[0]
+    K = int(min(horizon, rem.max() - 1))
+    f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)   # noqa: E731
+    A, B, C, D = f8(plant.A), f8(plant.B), f8(plant.C), f8(plant.D)
+    y, u, X = f8(y), f8(u), f8(X)
+    starts, rem = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(rem, np.int64)
+    ya = np.empty((K + 1, ny, M))
+    p = ptr
+    rc = LIB.reachset_sweep_block(p(A), p(B), p(C), p(D), int(bool(np.any(plant.D))), A.shape[0], B.shape[1],
+                                  ny, p(y), p(u), p(starts), p(rem), M, K, p(X), p(ya))
+    if rc != 0:
+        raise RuntimeError("reachset_sweep_block failed")
+    for k in range(K + 1):
+        Mk = int(np.searchsorted(-rem, -k, side="left"))  # rem > k, rem sorted descending
+        if Mk == 0:
+            break
+        m = starts[:Mk]
+        visit(k, m, m + k, ya[k, :, :Mk])
+

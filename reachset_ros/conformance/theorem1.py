@@ -1,0 +1,200 @@
+"""Theorem 1: reachset conformance as linear inequalities in xi, and the batch check.
+
+Paper Sec. III-B, Theorem 1 (``eq:methods:linearConstraint``). The deviations y_a^(m)[k]
+of the sequential test cases (:mod:`~reachset_ros.conformance.kernels`) must lie in
+R_a[k] = (+)_{i<k} C A^i W (+) V (eq. 13) for k = 0..k*. Theorem 1 writes this as
+``max_m N_k y_a^(m)[k] <= D_k xi`` with xi = [c_W, c_V, alpha_W, alpha_V], linear in xi,
+where the normals N_k come from the H-representation (Prop. 1) of R_a[k] built from the
+*unscaled* generators (they do not depend on alpha > 0).
+
+:class:`Theorem1` holds N_k and D_k; :func:`deviation_extremes` reduces all test cases of a
+recording to the left-hand sides (one sweep); :func:`check` is Def. 4 checked in batch
+(``reachset check``): it counts the measurement ticks at which some test case leaves
+R_a[k].
+"""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ReachsetError
+from ..sets.zonotope import halfspace_normals
+from .kernels import as_2d, matvec, sweep
+
+
+# ------------------------------------------------------------------ Theorem 1
+def output_normals(plant, horizon):
+    """Unit normals N_k^+ of R_a[k] for k = 0..horizon (Theorem 1), shape (q_k, ny) each.
+
+    For a one-dimensional output N_k^+ = [[1]]. Otherwise the facet normals of the zonotope
+    with the unscaled generators [C A^0 G'_W, ..., C A^{k-1} G'_W, G'_V] (Prop. 1).
+    """
+    ny = plant.C.shape[0]
+    if ny == 1:
+        return [np.ones((1, 1))] * (horizon + 1)
+    out, E, blocks = [], np.eye(plant.A.shape[0]), []
+    for k in range(horizon + 1):
+        G = np.hstack(blocks + [plant.Gv]) if blocks else plant.Gv
+        out.append(halfspace_normals(G))
+        blocks.append(plant.C @ E @ plant.Gw)
+        E = plant.A @ E
+    return out
+
+
+@dataclass(frozen=True)
+class Theorem1:
+    """The linear conformance constraints of Theorem 1 for a plant and horizon.
+
+    ``Dp[k] @ xi`` and ``Dm[k] @ xi`` are the offsets of the half-spaces ``N_k y <= d+`` and
+    ``-N_k y <= d-`` of R_a[k]; xi = [c_W (n), c_V (ny), alpha_W (pw), alpha_V (pv)].
+    """
+
+    normals: tuple
+    Dp: tuple
+    Dm: tuple
+
+    @classmethod
+    def build(cls, plant, horizon):
+        n, ny = plant.A.shape[0], plant.C.shape[0]
+        normals = output_normals(plant, horizon)
+        Dp, Dm = [], []
+        sumE = np.zeros((ny, n))       # sum_{i<k} C A^i
+        sumR = None                    # per normal: sum_{i<k} |n C A^i G'_W|
+        E = plant.C.copy()
+        for k in range(horizon + 1):
+            N = normals[k]
+            radW = np.zeros((N.shape[0], plant.Gw.shape[1]))
+            # recompute per k (normals change with k when ny > 1)
+            Ei = plant.C.copy()
+            for _ in range(k):
+                radW += np.abs(N @ Ei @ plant.Gw)
+                Ei = Ei @ plant.A
+            radV = np.abs(N @ plant.Gv)
+            cW = N @ sumE
+            cV = N
+            Dp.append(np.hstack([cW, cV, radW, radV]))
+            Dm.append(np.hstack([-cW, -cV, radW, radV]))
+            sumE = sumE + E
+            E = E @ plant.A
+        return cls(tuple(normals), tuple(Dp), tuple(Dm))
+
+    def offsets(self, xi):
+        """Per k: (d+, d-) arrays for the parameter vector xi."""
+        return [(Dp @ xi, Dm @ xi) for Dp, Dm in zip(self.Dp, self.Dm)]
+
+
+def xi_of(c_w, c_v, alpha_w, alpha_v):
+    return np.concatenate([np.ravel(c_w), np.ravel(c_v), np.ravel(alpha_w), np.ravel(alpha_v)]).astype(np.float64)
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """Per k: the largest ``N_k y_a`` and ``-N_k y_a`` over all test cases (Theorem 1's LHS)."""
+
+    maxp: tuple
+    maxm: tuple
+    test_cases: int
+    checks: int
+
+
+def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None):
+    """Reduce all test cases to the left-hand sides of Theorem 1, per k and normal."""
+    thm = thm or Theorem1.build(plant, horizon)
+    maxp = [None] * (horizon + 1)
+    maxm = [None] * (horizon + 1)
+    count = [0]
+
+    def visit(k, m, t, ya):
+        Ny = matvec(thm.normals[k], ya)
+        hi, lo = Ny.max(axis=1), (-Ny).max(axis=1)
+        maxp[k] = hi if maxp[k] is None else np.maximum(maxp[k], hi)
+        maxm[k] = lo if maxm[k] is None else np.maximum(maxm[k], lo)
+        count[0] += ya.shape[1]
+
+    M = sweep(plant, estimator, y, u, segments, horizon, visit)
+    if M == 0:
+        raise ReachsetError("too few samples for a test case (need at least "
+                            f"{estimator.history + 1} consecutive valid ticks)")
+    for k in range(horizon + 1):
+        if maxp[k] is None:
+            q = thm.normals[k].shape[0]
+            maxp[k] = np.full(q, -np.inf)
+            maxm[k] = np.full(q, -np.inf)
+    return Deviations(tuple(maxp), tuple(maxm), M, count[0])
+
+
+def deviation_extremes_many(plant, estimator, series, horizon, thm=None, workers=None):
+    """:func:`deviation_extremes` of several joints, in threads (one per core by default).
+
+    ``series``: {name: object with ``y``, ``u``, ``segments``}. The compiled sweep kernel
+    releases the GIL, so joints run in parallel; each joint's result is the one
+    :func:`deviation_extremes` gives on its own. A ReachsetError names the first failing
+    joint in ``series`` order.
+    """
+    thm = thm or Theorem1.build(plant, horizon)
+    names = list(series)
+    workers = workers or min(len(names), os.cpu_count() or 1)
+
+    def one(name):
+        s = series[name]
+        try:
+            return deviation_extremes(plant, estimator, s.y, s.u, s.segments, horizon, thm)
+        except ReachsetError as e:
+            return ReachsetError(f"joint {name}: {e}")
+
+    if workers <= 1 or len(names) <= 1:
+        res = [one(n) for n in names]
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            res = list(pool.map(one, names))
+    for r in res:
+        if isinstance(r, ReachsetError):
+            raise r
+    return dict(zip(names, res))
+
+
+def combine(devs):
+    """Deviations of several recordings (joints' data from several bags) together."""
+    maxp = tuple(np.maximum.reduce([d.maxp[k] for d in devs]) for k in range(len(devs[0].maxp)))
+    maxm = tuple(np.maximum.reduce([d.maxm[k] for d in devs]) for k in range(len(devs[0].maxm)))
+    return Deviations(maxp, maxm, sum(d.test_cases for d in devs), sum(d.checks for d in devs))
+
+
+# ------------------------------------------------------------------ batch check
+@dataclass(frozen=True)
+class CheckResult:
+    """Verdict of a batch conformance check of one joint."""
+
+    violations: int               # measurement ticks at which some test case is outside
+    first_violation_tick: int     # index into the series (-1 if none)
+    test_cases: int
+    checks: int
+    worst_margin: float           # min over all checks of (offset - N y_a); < 0 = violated
+
+
+def check(plant, thm, estimator, xi, y, u, segments, horizon):
+    """Theorem-1 check of every (test case, k) pair; counts violating measurement ticks."""
+    offs = thm.offsets(xi)
+    T = len(as_2d(y))
+    bad = np.zeros(T, dtype=bool)
+    stats = {"checks": 0, "margin": np.inf}
+
+    def visit(k, m, t, ya):
+        N = thm.normals[k]
+        Ny = matvec(N, ya)
+        dp, dm = offs[k]
+        mp = dp[:, None] - Ny
+        mm = dm[:, None] + Ny
+        viol = (mp < 0).any(axis=0) | (mm < 0).any(axis=0)
+        bad[t[viol]] = True
+        stats["checks"] += ya.shape[1]
+        stats["margin"] = min(stats["margin"], float(mp.min()), float(mm.min()))
+
+    M = sweep(plant, estimator, y, u, segments, horizon, visit)
+    idx = np.flatnonzero(bad)
+    return CheckResult(int(bad.sum()), int(idx[0]) if len(idx) else -1, M, stats["checks"],
+                       stats["margin"])
+

@@ -1,0 +1,206 @@
+"""Data in, results out: synthesis from bags (``reachset synthesize``) and the iterative procedure.
+
+:func:`synthesize_bags` reads bags (``/joint_states``, ``/plant_input`` and the optional
+``/reference``), builds the per-joint problems and runs a mode (:class:`BagSynthesis`, which
+also makes the model file). :func:`iterate` is the paper's iterative procedure (Sec. III-D,
+Fig. 4) around a user-given ``record(gains) -> data`` callable.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import conformance as cf
+from ..bags import read_joint_series
+from ..bags.references import read_references
+from ..conformance import model as mdl
+from ..conformance.estimators import Estimator
+from ..errors import ReachsetError
+from ..systems.plant import lwa4p_joint_plant
+from .config import SearchSpace, load_config, u_max_for
+from .modes import synthesize
+from .problem import problems_from_series
+from .reference_error import ReferenceMethod
+
+
+def iterate(record, series, space, iterations=2, final_reidentify=True, plant=None, estimator=None,
+            horizon=125, u_max=26.0, u_ff=2.0, search=None, seed=0,
+            reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004):
+    """The paper's iterative procedure (Sec. III-D, Fig. 4).
+
+    1. synthesise (combined) on the initial data ``series``;
+    2. ``record(gains)`` with the new gains (``{joint: gains}``) returns new data: a list of bag
+       paths, ``{joint: JointSeries}`` or ``({joint: JointSeries}, {joint: [Reference]})`` (e.g.
+       :func:`reachset_ros.sim.recordings.recordings_series` of
+       :func:`reachset_ros.sim.recordings.simulate_arm_recordings`; the simulator or the node
+       suite drives the robot);
+    3. repeat 1-2 ``iterations`` times in total, each synthesis seeded with the previous gains;
+       then, if ``final_reidentify``, record once more and re-identify the sets with the
+       controller fixed.
+
+    Returns
+    -------
+    list of dict
+        One ``{"step": ..., "results": {joint: JointResult}}`` per synthesis/re-identification.
+    """
+    plant = plant or lwa4p_joint_plant(dt=dt)
+    estimator = estimator or Estimator("fd")
+    thm = cf.Theorem1.build(plant, horizon)
+    history = []
+    data, refs = _as_series(series, dt)
+    prev = None
+    if not isinstance(series, (dict, tuple)) and not data:
+        raise ReachsetError("iterate: no data")
+    for it in range(int(iterations)):
+        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
+                                     thm=thm)
+        seeds = {n: [r.params] for n, r in prev.items()} if prev else None
+        res = synthesize(probs, space, "combined", search, seed, seeds, with_separate=(it == 0))
+        history.append({"step": f"synthesis {it + 1}", "results": res})
+        prev = res
+        if it + 1 < iterations or final_reidentify:
+            data, refs = _as_series(record({n: r.gains() for n, r in res.items()}), dt)
+    if final_reidentify and prev:
+        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
+                                     thm=thm)
+        res = synthesize(probs, space, "reidentify", gains={n: r.gains() for n, r in prev.items()})
+        history.append({"step": "re-identification", "results": res})
+    return history
+
+
+def _as_series(data, dt):
+    """``(series, references)`` of bag paths, ``{joint: JointSeries}`` or ``(series, references)``."""
+    if isinstance(data, dict):
+        return data, {}
+    if isinstance(data, tuple) and len(data) == 2 and isinstance(data[0], dict):
+        return data[0], dict(data[1] or {})
+    paths = [Path(p) for p in data]
+    series, _ = read_joint_series(paths, None, dt)
+    return series, read_references(paths, list(series), dt)
+
+
+# ====================================================================== bags in, model out
+@dataclass
+class BagSynthesis:
+    """Everything :func:`synthesize_bags` computed (the CLI and the synthesis node use it)."""
+
+    results: dict            # joint -> JointResult
+    problems: list           # JointProblem per joint
+    report: object           # bags.ReadReport
+    plant: object
+    plant_spec: dict
+    estimator: object
+    horizon: int
+    space: object            # SearchSpace (None for reidentify)
+    mode: str
+    seed: int
+    reference_method: int
+    bags: tuple
+
+    def as_dict(self):
+        d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
+             "data": self.report.as_dict(), "reference_method": self.reference_method, "seed": self.seed}
+        if self.space is not None:
+            d.update(observer=self.space.observer, controller=self.space.controller, free=list(self.space.free),
+                     search_box={n: list(self.space.bounds[n]) for n in self.space.free})
+        return d
+
+    def model(self, command=""):
+        """The :class:`reachset_ros.conformance.model.ConformanceModel` of the results (gains per joint)."""
+        joints = {}
+        for n, r in self.results.items():
+            joints[n] = mdl.JointSets(tuple(r.alpha_w.tolist()), tuple(r.alpha_v.tolist()), tuple(r.c_w.tolist()),
+                                      tuple(r.c_v.tolist()), r.test_cases, self.horizon, r.gains(),
+                                      {"reference_error": r.reference, "conformant": r.conformant})
+        return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints, 0.0,
+                                    mdl.provenance(self.bags, command))
+
+
+def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controller=None, free=None, fix=None,
+                    bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
+                    reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
+                    config=None, model=None,
+                    dt=0.004):
+    """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
+
+    Parameters
+    ----------
+    bags : sequence of path
+    joints : list of str or None (all joints on both topics; reidentify: the model's joints)
+    mode : {"combined", "separate", "reidentify"}
+    observer, controller, free, fix, bounds, eso_input : the search space (:meth:`SearchSpace.from_config`)
+    u_max : float, list (one per joint) or dict, optional
+        Default: the gains' ``u_max`` (reidentify), else the config's per-joint value.
+    u_ff, horizon, estimator, alpha_lower, reference_method, seed, lqg_r : see the CLI
+    config : path of a synthesis config (default ``config/synthesis.yaml``)
+    model : path of a model file (mode reidentify: its gains are kept; its plant, estimator
+        and horizon are used unless given)
+
+    Returns
+    -------
+    BagSynthesis
+    """
+    cfg = load_config(config)
+    bags = tuple(Path(b) for b in bags)
+    if mode not in ("combined", "separate", "reidentify"):
+        raise ReachsetError(f"unknown mode {mode!r} (combined, separate or reidentify)")
+    if mode == "reidentify":
+        if not model:
+            raise ReachsetError("mode reidentify needs a model file whose gains are kept")
+        base = mdl.load(model)
+        plant, plant_spec = base.plant, base.plant_spec
+        horizon = base.horizon if horizon is None else int(horizon)
+        est = base.estimator if estimator is None else Estimator.named(estimator, base.plant)
+        gains = {n: j.gains for n, j in base.joints.items()}
+        names = list(base.joints) if not joints else list(joints)
+        for n in names:
+            if n not in base.joints:
+                raise ReachsetError(f"joint {n} is not in the model {model}")
+        space = None
+    else:
+        if model:
+            raise ReachsetError("a model file is only used with mode reidentify")
+        plant, plant_spec = lwa4p_joint_plant(dt=dt), {"kind": "lwa4p_joint", "dt": dt}
+        horizon = 125 if horizon is None else int(horizon)
+        est = Estimator.named(estimator or "fd", lwa4p_joint_plant(dt=dt))
+        gains, names = None, (list(joints) if joints else None)
+        space = SearchSpace.from_config(cfg, observer, controller, free, fix, bounds, eso_input, dt)
+    if horizon < 0:
+        raise ReachsetError("horizon must be >= 0")
+    series, report = read_joint_series(list(bags), names, plant.dt)
+    names = list(series)
+    cf.require_horizon(series, est.history, horizon, bags)
+    if mode == "reidentify":
+        missing = [n for n in names if not gains.get(n)]
+        if missing:
+            raise ReachsetError(f"joint {missing[0]}: the model {model} has no gains to keep fixed")
+    # U_p per joint
+    if u_max is None:
+        um = {n: float(gains[n]["u_max"]) if gains and "u_max" in gains.get(n, {}) else u_max_for(cfg, n)
+              for n in names}
+    elif isinstance(u_max, dict):
+        um = {n: float(u_max[n]) if n in u_max else u_max_for(cfg, n) for n in names}
+    else:
+        vals = list(np.atleast_1d(np.asarray(u_max, float)))
+        if len(vals) == 1:
+            um = {n: vals[0] for n in names}
+        elif len(vals) == len(names):
+            um = dict(zip(names, vals))
+        else:
+            raise ReachsetError(f"u_max: {len(vals)} values for {len(names)} joints ({', '.join(names)})")
+    for n, v in um.items():
+        if not (math.isfinite(v) and v > 0):
+            raise ReachsetError(f"joint {n}: u_max must be positive, got {v}")
+    uff = float(cfg.get("u_ff", 2.0) if u_ff is None else u_ff)
+    search = dict(cfg.get("search", {}))
+    seed = int(search.get("seed", 0) if seed is None else seed)
+    if seed < 0:
+        raise ReachsetError(f"seed must be >= 0, got {seed}")
+    refs = read_references(list(bags), names, plant.dt)
+    problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower)
+    results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
+    return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
+                        int(reference_method), bags)

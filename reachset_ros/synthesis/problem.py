@@ -1,0 +1,188 @@
+"""The per-joint synthesis problem: data, Theorem-1 constraints on alpha, limits, references.
+
+The Theorem-1 constraints (paper Sec. III-B) depend only on the data (test cases replay the
+*recorded* plant input ``u_p``), not on ``theta``: the deviation extremes are computed once per
+joint (:func:`reachset_ros.conformance.deviation_extremes`) and reduced to a handful of
+non-redundant rows ``G alpha >= h`` (:class:`AlphaPolytope`; centres fixed at 0 as in the
+paper's Appendix A). :class:`JointProblem` holds them with everything else about one joint that
+does not depend on the controller parameters (``U_p``, ``U_ff``, the references and the
+reference-error method); :func:`problems_from_series` builds one per joint.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linprog
+
+from .. import conformance as cf
+from ..errors import InfeasibleError, ReachsetError
+from .reference_error import ReferenceMethod, reference_windows
+
+
+# ====================================================================== Theorem-1 constraints on alpha
+@dataclass(frozen=True, eq=False)
+class AlphaPolytope:
+    """Theorem 1 with zero centres as ``G alpha >= h``, ``alpha >= lower`` (non-redundant rows).
+
+    ``alpha = [alpha_W, alpha_V]``. Built from :func:`reachset_ros.conformance.identification_constraints`;
+    rows with ``h <= 0`` (implied by ``alpha >= 0``, since ``G >= 0``) and rows implied by a
+    single other row (``G_i / h_i >= G_j / h_j`` element-wise) are dropped, which leaves a
+    few dozen of the ``2 (k* + 1)`` rows.
+    """
+
+    G: np.ndarray
+    h: np.ndarray
+    lower: np.ndarray
+    rows_total: int
+    pw: int
+    pv: int
+
+    @classmethod
+    def build(cls, plant, thm, devs, horizon=None, alpha_lower=None):
+        A_ub, b_ub, _, _ = cf.identification_constraints(plant, thm, devs, horizon, "zero")
+        pw, pv, ny = plant.Gw.shape[1], plant.Gv.shape[1], plant.C.shape[0]
+        off = pw + ny
+        G, h = -A_ub[:, off:], -b_ub
+        total = len(h)
+        na = pw + pv
+        lower = np.zeros(na) if alpha_lower is None else np.array(
+            np.broadcast_to(np.asarray(alpha_lower, float), (na,)))
+        if np.any(lower < 0) or not np.all(np.isfinite(lower)):
+            raise ReachsetError("alpha lower bounds must be finite and non-negative")
+        if np.any(G < -1e-15):
+            raise ReachsetError("internal: Theorem-1 rows with negative alpha coefficients")
+        G = np.maximum(G, 0.0)
+        keep = h > 0
+        G, h = G[keep], h[keep]
+        dead = ~np.any(G > 0, axis=1)
+        if np.any(dead):
+            raise InfeasibleError(f"conformance is infeasible: a measured deviation of {float(h[dead].max()):.3g} "
+                                  "lies in a direction no disturbance generator reaches")
+        if len(h):
+            Gn = G / h[:, None]
+            order = np.lexsort(Gn.T[::-1])
+            Gn, G, h = Gn[order], G[order], h[order]
+            keep = np.ones(len(h), bool)
+            for i in range(len(h)):
+                if not keep[i]:
+                    continue
+                dom = np.all(Gn >= Gn[i], axis=1)   # rows implied by row i
+                dom[i] = False
+                keep &= ~dom
+            G, h = G[keep], h[keep]
+        return cls(G, h, lower, total, pw, pv)
+
+    def minimize(self, c, extra=None, rhs=None):
+        """``min c . alpha`` over the polytope, optionally with ``extra . alpha <= rhs``.
+
+        Returns ``(alpha, value)`` or ``(None, None)`` when infeasible. The problem is scaled
+        (rows by ``h``, variables by their largest coefficient) before HiGHS sees it.
+        """
+        c = np.asarray(c, float)
+        na = self.G.shape[1]
+        if len(self.h):
+            s = 1.0 / np.maximum((self.G / self.h[:, None]).max(axis=0), 1e-300)
+        else:
+            s = np.ones(na)
+        s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
+        A = [-(self.G / self.h[:, None]) * s] if len(self.h) else []
+        b = [-np.ones(len(self.h))] if len(self.h) else []
+        if extra is not None:
+            if rhs <= 0:
+                if rhs < 0 or np.any(np.asarray(extra) * np.maximum(self.lower, 0) > 0):
+                    return None, None
+            else:
+                A.append((np.asarray(extra, float) * s / rhs)[None, :])
+                b.append(np.ones(1))
+        cs = c * s
+        scale = float(np.abs(cs).max()) or 1.0
+        bounds = [(float(lo / sj), None) for lo, sj in zip(self.lower, s)]
+        A_ub = np.vstack(A) if A else None
+        b_ub = np.concatenate(b) if b else None
+        res = linprog(cs / scale, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+        if res.status == 2:
+            return None, None
+        if res.status != 0:
+            raise InfeasibleError(f"inner linear programme failed: {res.message}")
+        alpha = np.maximum(res.x * s, self.lower)
+        return alpha, float(c @ alpha)
+
+
+# ====================================================================== per-joint problem
+@dataclass(frozen=True, eq=False)
+class JointProblem:
+    """Everything about one joint that does not depend on the controller parameters.
+
+    Build with :meth:`prepare`.
+    """
+
+    name: str
+    plant: object
+    estimator: object
+    thm: object
+    devs: object
+    horizon: int
+    polytope: AlphaPolytope
+    u_max: float
+    u_ff: float
+    y: np.ndarray
+    u: np.ndarray
+    segments: tuple
+    references: tuple = ()
+    reference_method: ReferenceMethod = ReferenceMethod.REFERENCE_SET
+    alpha_lower: np.ndarray = None
+    stamps: np.ndarray = None
+    ref_windows: tuple = ()
+
+    @classmethod
+    def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0,
+                thm=None, references=(), reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None,
+                stamps=None):
+        """Deviation extremes (one sweep over all test cases) and the reduced Theorem-1 rows.
+
+        Raises
+        ------
+        ReachsetError
+            On bad limits, too little data, or references faster than ``U_ff``.
+        """
+        if not (math.isfinite(u_max) and u_max > 0):
+            raise ReachsetError(f"joint {name}: u_max must be positive, got {u_max}")
+        if not (math.isfinite(u_ff) and u_ff >= 0):
+            raise ReachsetError(f"joint {name}: u_ff must be >= 0, got {u_ff}")
+        if reference_method not in tuple(ReferenceMethod):
+            raise ReachsetError(f"reference method must be 1, 2 or 3, got {reference_method}")
+        reference_method = ReferenceMethod(int(reference_method))
+        refs = tuple(references or ())
+        qmax = max((float(np.abs(r.qdd).max()) for r in refs if len(r)), default=0.0)
+        if qmax > u_ff * (1 + 1e-12):
+            raise ReachsetError(f"joint {name}: the references in the bags reach |qdd_d| = {qmax:.4g} rad/s^2, "
+                                f"outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
+        thm = thm or cf.Theorem1.build(plant, horizon)
+        try:
+            devs = cf.deviation_extremes(plant, estimator, y, u, segments, horizon, thm)
+            poly = AlphaPolytope.build(plant, thm, devs, horizon, alpha_lower)
+        except ReachsetError as e:
+            raise type(e)(f"joint {name}: {e}") from None
+        windows = reference_windows(refs) if (refs and reference_method == ReferenceMethod.REFERENCE_SET) else ()
+        return cls(name, plant, estimator, thm, devs, horizon, poly, float(u_max), float(u_ff),
+                   cf.as_2d(y), cf.as_2d(u), tuple(segments), refs, reference_method,
+                   poly.lower, stamps, windows)
+
+    @property
+    def test_cases(self):
+        return self.devs.test_cases
+
+
+def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, references=None,
+                         reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None, thm=None):
+    """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict."""
+    thm = thm or cf.Theorem1.build(plant, horizon)
+    out = []
+    for name, s in series.items():
+        um = u_max[name] if isinstance(u_max, dict) else u_max
+        refs = (references or {}).get(name, ())
+        out.append(JointProblem.prepare(name, plant, estimator, s.y, s.u, s.segments, horizon, um, u_ff,
+                                        thm, refs, reference_method, alpha_lower, s.stamps))
+    return out

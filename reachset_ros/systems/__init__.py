@@ -1,0 +1,39 @@
+"""Systems: the linear closed loop of one joint - plant, observer, controller - and its analysis.
+
+The paper's per-joint models and feedback laws (Sec. II-C, III-A, IV; Appendix A), pure
+numpy/scipy:
+
+* :mod:`~reachset_ros.systems.plant` - :class:`LinearPlant` (paper eq. ``discreteSystem``)
+  and the LWA-4P's per-joint plant (Appendix A) and 4-state robot model;
+* :mod:`~reachset_ros.systems.observers` - high-gain, extended-state and Kalman observers
+  as discrete linear systems (:class:`LinearObserver`, :class:`ObserverState`);
+* :mod:`~reachset_ros.systems.controllers` - static and disturbance-compensated feedback
+  (paper eqs. ``staticfeedback``, ``feedbackLaw``), LQR and the LQG baseline;
+* :mod:`~reachset_ros.systems.closedloop` - the composed error system
+  (:func:`close_loop`), its stability, and the reachable tracking error ``R_e`` and input
+  ``R_u`` (:func:`analyze`, paper Sec. III-A); tick-by-tick simulation;
+* :mod:`~reachset_ros.systems.gains` - :class:`Gains`, the one type for a joint's observer
+  and controller parameters (ROS parameters, model file), and :func:`check_gains`.
+
+May import: :mod:`reachset_ros.sets` and :mod:`reachset_ros.errors` only.
+"""
+from .closedloop import (Analysis, ClosedLoop, Stability, analyze, center_coefficients, close_loop,
+                         closed_loop_tick, radius_coefficients, simulate, simulate_ticks, stability)
+from .controllers import (LinearController, compensated_feedback, control_input, lqg, lqr, lqr_gain,
+                          static_feedback)
+from .gains import DEFAULTS, Gains, check_gains
+from .observers import (LinearObserver, ObserverState, bilinear, extended_state_observer,
+                        high_gain_observer, kalman_filter, observer_output, observer_update,
+                        paper_lqg_covariances)
+from .plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
+
+__all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
+           "LinearObserver", "ObserverState", "bilinear", "high_gain_observer",
+           "extended_state_observer", "kalman_filter", "paper_lqg_covariances",
+           "observer_output", "observer_update",
+           "LinearController", "static_feedback", "compensated_feedback", "lqr_gain", "lqr",
+           "lqg", "control_input",
+           "ClosedLoop", "close_loop", "Stability", "stability", "Analysis", "analyze",
+           "radius_coefficients", "center_coefficients", "closed_loop_tick", "simulate",
+           "simulate_ticks",
+           "Gains", "check_gains", "DEFAULTS"]

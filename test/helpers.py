@@ -1,0 +1,210 @@
+"""Helpers shared by the node tests (test_nodes.py, test_nodes_faults.py): models, data, DDS harness.
+
+A plain module, imported by the tests that use it (``from helpers import Bus, write_model``),
+rather than conftest.py fixtures: what is shared here are a class and functions that take
+arguments (a model's sets, a stream's seed, the topics to listen to), not set-up with a
+scope. conftest.py keeps the fixtures (``ros``, ``lwa4p_dir``). This module imports rclpy and
+the message packages at the top, so only the node tests import it; the pure-core tests do
+not need ROS.
+
+* :func:`write_model` - a conformance model file with the given sets for two joints;
+* :func:`plant_stream`, :func:`stream` - data that follow the per-joint plant (two joints);
+* :class:`Bus` - the test's side of DDS for the node fault tests (publishers, service
+  calls, subscriptions spun by their own thread);
+* :class:`Recorder` - subscriptions to given topics spun by their own thread;
+* :func:`wait_until` - poll a condition until a timeout.
+"""
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import GetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from reachset_ros.conformance import model as mdl
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.nodes.common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns, to_stamp
+from reachset_ros.systems.plant import lwa4p_joint_plant
+
+JOINTS = ["arm_1_joint", "arm_2_joint"]
+HORIZON = 25
+#: sets about 4x those identified on :func:`stream` (0.035 / 1.4e-4): no false alarm on it
+#: (15,000 ticks, 5 seeds, smallest margin 2.5e-4 rad), a 0.01 rad jump is caught at once
+ALPHA_W, ALPHA_V = (0.15, 0.0), (4e-4,)
+#: deep publishers, so that the test itself never drops what it sends
+PUB_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def write_model(path, alpha_w=ALPHA_W, alpha_v=ALPHA_V, joints=JOINTS, horizon=HORIZON):
+    """A conformance model for the per-joint plant with the sets ``alpha_w``, ``alpha_v``
+    (zero centres, estimator ``fd``) for each of ``joints``, saved to ``path``; returns ``Path(path)``."""
+    p = lwa4p_joint_plant()
+    js = {j: mdl.JointSets(tuple(alpha_w), tuple(alpha_v), (0.0,) * 5, (0.0,), 0, horizon) for j in joints}
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), path)
+    return Path(path)
+
+
+def plant_stream(n, seed=0, fault_from=None):
+    """Data that follow the per-joint plant (small bounded disturbances), two joints: yields
+    ``(k, y, u)`` per tick; from tick ``fault_from`` on a constant acceleration of 20 rad/s^2
+    acts on both joints."""
+    p = lwa4p_joint_plant()
+    rng = np.random.default_rng(seed)
+    X = np.zeros((2, 5))
+    for k in range(n):
+        y = X[:, 0] + 2e-5 * rng.uniform(-1, 1, 2)
+        u = np.sin(0.01 * k + np.arange(2)) - 50 * X[:, 1] - 10 * X[:, 2]
+        yield k, y, u
+        a = 0.0 if fault_from is None or k < fault_from else 20.0
+        for j in range(2):
+            X[j] = p.A @ X[j] + p.B[:, 0] * u[j] + p.Gw @ (np.array([0.01, 1.0]) * rng.uniform(-1, 1, 2))
+            X[j, 2] += 0.004 * a
+            X[j, 1] += 0.5 * 0.004 ** 2 * a
+
+
+def stream(n, seed=0):
+    """(Y, U) of shape (n, 2): two joints following the per-joint plant in closed loop,
+    bounded disturbances (0.01, 1.0) and 2e-5 rad noise (:func:`plant_stream` without a fault)."""
+    Y, U = np.empty((n, 2)), np.empty((n, 2))
+    for k, y, u in plant_stream(n, seed):
+        Y[k], U[k] = y, u
+    return Y, U
+
+
+def wait_until(cond, timeout=15.0, poll=0.01):
+    """Poll ``cond()`` every ``poll`` s until it is true or ``timeout`` s have passed; its
+    last value as a bool."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(poll)
+    return bool(cond())
+
+
+class Recorder:
+    """Subscriptions spun by their own executor thread (nothing missed while the test waits)."""
+
+    def __init__(self, name, topics):
+        self.node = Node(name)
+        self.msgs = {t: [] for t in topics}
+        for topic, cls in topics.items():
+            qos = SAFE_STOP_QOS if cls is SafeStop else QoSProfile(depth=5000)
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self.msgs[t].append((time.monotonic(), m)),
+                                          qos)
+        self.ex = SingleThreadedExecutor()
+        self.ex.add_node(self.node)
+        threading.Thread(target=self.ex.spin, daemon=True).start()
+
+    def wait(self, cond, timeout):
+        return wait_until(cond, timeout, poll=0.02)
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.destroy_node()
+
+
+class Bus:
+    """The test's side of DDS: publishers and service clients on ``caller`` (main thread),
+    subscriptions on ``listener``, spun by its own executor thread so nothing is missed."""
+
+    def __init__(self):
+        self.caller = Node("faults_caller")
+        self.listener = Node("faults_listener")
+        self.status, self.stops, self.inputs = [], [], []
+        self.diags = {}
+        deep = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        L = self.listener
+        L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
+        L.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
+        L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
+        L.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, deep)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(L)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        C = self.caller
+        self.js = C.create_publisher(JointState, "joint_states", PUB_QOS)
+        self.pi = C.create_publisher(PlantInput, "plant_input", PUB_QOS)
+        self.est = C.create_publisher(JointEstimate, "observer/estimate", PUB_QOS)
+        self.ref = C.create_publisher(JointReference, "reference", PUB_QOS)
+
+    def _on_diag(self, arr):
+        for st in arr.status:
+            self.diags[st.name] = (st.level, st.message, {kv.key: kv.value for kv in st.values}, time.monotonic())
+
+    def close(self):
+        self.executor.shutdown()
+        self.listener.destroy_node()
+        self.caller.destroy_node()
+
+    def clear(self):
+        del self.status[:], self.stops[:], self.inputs[:]
+
+    wait = staticmethod(wait_until)
+
+    def active_stops(self):
+        return [s for s in list(self.stops) if s.active]
+
+    def statuses(self, ts):
+        lo, hi = ts[0], ts[-1]
+        return [s for s in list(self.status) if lo <= stamp_ns(s.header.stamp) <= hi]
+
+    def call_trigger(self, name, timeout=15.0):
+        cli = self.caller.create_client(Trigger, name)
+        try:
+            assert cli.wait_for_service(timeout_sec=timeout), f"{name} not available"
+            fut = cli.call_async(Trigger.Request())
+            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=timeout)
+            assert fut.done(), f"{name} did not answer"
+            return fut.result()
+        finally:
+            self.caller.destroy_client(cli)
+
+    def set_params(self, target, values, atomically=True):
+        return set_remote_parameters(self.caller, target, values, atomically=atomically)
+
+    def get_param(self, target, name):
+        cli = self.caller.create_client(GetParameters, f"/{target}/get_parameters")
+        try:
+            assert cli.wait_for_service(timeout_sec=15.0)
+            fut = cli.call_async(GetParameters.Request(names=[name]))
+            rclpy.spin_until_future_complete(self.caller, fut, timeout_sec=15.0)
+            v = fut.result().values[0]
+            return {1: v.bool_value, 2: v.integer_value, 3: v.double_value, 4: v.string_value,
+                    8: list(v.double_array_value), 9: list(v.string_array_value)}.get(v.type)
+        finally:
+            self.caller.destroy_client(cli)
+
+    def counters(self, name="reachset_ros: conformance monitor", newer_than=None, timeout=15.0):
+        """Counters of the next /diagnostics of ``name`` received after ``newer_than`` (monotonic)."""
+        t = time.monotonic() if newer_than is None else newer_than
+        assert self.wait(lambda: name in self.diags and self.diags[name][3] > t, timeout), f"no diagnostics of {name}"
+        return {k: int(v) if v.lstrip("-").isdigit() else v for k, v in self.diags[name][2].items()}
+
+    def send_y(self, t, names, values):
+        m = JointState(name=list(names), position=[float(v) for v in values])
+        to_stamp(m.header.stamp, t)
+        self.js.publish(m)
+
+    def send_u(self, t, names, values):
+        m = PlantInput(name=list(names), acceleration=[float(v) for v in values])
+        to_stamp(m.header.stamp, t)
+        self.pi.publish(m)
+
+    def send_ticks(self, ts, Y, U, drop_y=(), drop_u=(), pace=0.002):
+        for k, t in enumerate(ts):
+            if k not in drop_y:
+                self.send_y(t, JOINTS, Y[k])
+            if k not in drop_u:
+                self.send_u(t, JOINTS[::-1], U[k][::-1])
+            if pace:
+                time.sleep(pace)
