@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC, STATUS_TOPIC, header_stamp_ns
+from .bags.messages import DIAGNOSTICS_TOPIC, ESTIMATE_TOPIC, REFERENCE_TOPIC, STATUS_TOPIC, header_stamp_ns
 from .bags.references import read_references
 from .bags.series import read_messages
 from .conformance import model as mdl
@@ -223,36 +223,73 @@ def run_tracking_set(model, joint, references, inflation):
     return 0.5 * (lo + hi), (1.0 + inflation) * r_dist + 0.5 * (hi - lo)
 
 
-def demo_tracking(data, syn, until, model=None, references=None, inflation=0.0):
+def controller_transients(diagnostics):
+    """The transient windows the controller reported: ``{joint: [(start_ns, end_ns), ...]}``.
+
+    ``diagnostics``: ``DiagnosticArray`` messages (``/diagnostics``). controller_node reports,
+    after its start, each gain change and each end of braking, the stamps from which
+    (``transient_start_ns``) and until which (``transient_end_ns/JOINT``, from the closed
+    loop's settling time, :func:`reachset_ros.systems.closedloop.settling_ticks`) the
+    tracking error is not claimed to lie in ``R*_e``. Windows of the same start are merged.
+    """
+    out = {}
+    for arr in diagnostics:
+        for st in arr.status:
+            if st.name != "reachset_ros: controller":
+                continue
+            kv = {v.key: v.value for v in st.values}
+            if "transient_start_ns" not in kv:
+                continue
+            start = int(kv["transient_start_ns"])
+            for k, v in kv.items():
+                if k.startswith("transient_end_ns/"):
+                    out.setdefault(k.split("/", 1)[1], set()).add((start, int(v)))
+    return {j: sorted(w) for j, w in out.items()}
+
+
+def demo_tracking(data, syn, until, model=None, references=None, inflation=0.0, transients=None):
     """Measured tracking errors of the demo's monitored run (before ``until``) against R_e.
 
     The error is the observer's estimate minus the reference (position, velocity), as the
     controller sees it. Two boxes: the synthesis' ``R*_e`` (training references, the sets as
     identified; centered at zero as reported) and, when ``model`` and ``references`` are
     given, :func:`run_tracking_set` (the references of this run, the sets inflated as the monitor's).
-    Returns {joint: {"max_abs_error", "re_radius", "share_inside", "ticks", and with a model
-    "run_center", "run_radius", "share_inside_run"}} and the per-joint error arrays.
+    ``R_e`` holds from zero initial error, so ticks inside a transient window after a start,
+    gain change or braking (``transients``: :func:`controller_transients`) are not judged:
+    the shares count only the ticks outside them. Returns {joint: {"max_abs_error",
+    "re_radius", "share_inside", "ticks" (judged), "ticks_in_transient" (excluded),
+    "transient_s" (the longest window), and with a model "run_center", "run_radius",
+    "share_inside_run"}} and the per-joint error arrays (all ticks).
     """
     est, ref = data[ESTIMATE_TOPIC], data[REFERENCE_TOPIC]
     stamps = sorted(s for s in est if s in ref and s < until)
     stats, errors = {}, {}
     if not stamps:
         return stats, errors
+    t = np.array(stamps, dtype=np.int64)
     for name, j in syn.items():
         def idx(msg):
             return list(msg.name).index(name)
         e = np.array([[est[s].position[idx(est[s])] - ref[s].position[idx(ref[s])],
                        est[s].velocity[idx(est[s])] - ref[s].velocity[idx(ref[s])]] for s in stamps])
+        windows = (transients or {}).get(name, [])
+        judged = np.ones(len(t), dtype=bool)
+        for lo, hi in windows:
+            judged &= ~((t >= lo) & (t < hi))
         r = [float(x) for x in j["re_radius"][:2]]
         inside = (np.abs(e[:, 0]) <= r[0]) & (np.abs(e[:, 1]) <= r[1])
-        st = {"max_abs_error": np.abs(e).max(axis=0).tolist(), "re_radius": r,
-              "share_inside": float(inside.mean()), "ticks": len(stamps)}
+        n = int(judged.sum())
+        st = {"max_abs_error": np.abs(e[judged]).max(axis=0).tolist() if n else [0.0, 0.0], "re_radius": r,
+              "share_inside": float(inside[judged].mean()) if n else float("nan"), "ticks": n,
+              "ticks_in_transient": int(len(t) - n),
+              "transient_s": max(((hi - lo) * 1e-9 for lo, hi in windows), default=0.0)}
         if model is not None and references is not None and references.get(name):
             box = run_tracking_set(model, name, references[name], inflation)
             if box is not None:
                 c, rr = box
+                inside_run = np.all(np.abs(e - c) <= rr, axis=1)
                 st.update(run_center=c.tolist(), run_radius=rr.tolist(),
-                          share_inside_run=float(np.all(np.abs(e - c) <= rr, axis=1).mean()))
+                          share_inside_run=float(inside_run[judged].mean()) if n else float("nan"))
         stats[name] = st
         errors[name] = e
     return stats, errors
@@ -280,7 +317,8 @@ def demo_plots(res, record, workdir):
                 for n, rs in read_references([record]).items()}
     # "margin": the deprecated name of "inflation" in results of older versions
     inflation = res.get("inflation", res.get("margin"))
-    stats, errors = demo_tracking(data, syn, until, model, refs, float(inflation or 0.0))
+    transients = controller_transients(m for _t, _lt, m in read_messages([record], [DIAGNOSTICS_TOPIC]))
+    stats, errors = demo_tracking(data, syn, until, model, refs, float(inflation or 0.0), transients)
     paths = []
     names = list(errors)
     if names:
@@ -292,6 +330,8 @@ def demo_plots(res, record, workdir):
                  label="R*_e of the synthesis (training references)")
             ext = np.array(r)
             title = f"{name}: {st['share_inside']:.1%} in R*_e"
+            if st.get("ticks_in_transient"):
+                title += f" ({st['ticks_in_transient']} transient ticks not judged)"
             if "run_radius" in st:
                 _box(ax, st["run_center"], st["run_radius"], edgecolor="tab:green", linewidth=2,
                      label="R*_e of this run (its references, the monitor's inflation)")

@@ -2,8 +2,14 @@
 import numpy as np
 import pytest
 
-from reachset_ros.systems.closedloop import (analyze, center_coefficients, close_loop, simulate,
-                                     simulate_ticks, stability)
+from types import SimpleNamespace
+
+from reachset_ros.bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
+from reachset_ros.plots import controller_transients, demo_tracking
+from reachset_ros.systems.closedloop import (SETTLING_TOLERANCE, FeedbackLaw, analyze, center_coefficients,
+                                             close_loop, settling_ticks, settling_time, simulate,
+                                             simulate_ticks, stability)
+from reachset_ros.systems.gains import Gains
 from reachset_ros.systems.controllers import compensated_feedback, lqg, lqr, static_feedback
 from reachset_ros.systems.observers import extended_state_observer, high_gain_observer, kalman_filter
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
@@ -189,3 +195,78 @@ def test_u_ff_and_centres():
     res = analyze(cl, AW_II, AV_II, u_ff=2.0, sets=True)
     assert res.re_set.norm() == pytest.approx(res.re_norm)
     assert res.ru_set.interval_hull()[1][0] == pytest.approx(res.ru[1])
+
+
+# ------------------------------------------------------------------ the deployed law; transients (issue 14)
+@pytest.mark.parametrize("eso_input", ["previous", "current"])
+def test_feedback_law_is_the_certified_algebraic_loop(eso_input):
+    """FeedbackLaw (what controller_node calls) solves u = u_ff + K (x_ref - x0 - Do_u u)
+    exactly, and at x_ref = u_ff = 0 it is the certified closed loop's u = Fz z."""
+    g = Gains(observer="eso", controller="compensated", omega=20.0, eso_input=eso_input)
+    obs, ctrl = g.build()
+    cl = close_loop(PLANT, obs, ctrl)
+    law = FeedbackLaw.of(ctrl, obs)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        z = rng.normal(size=cl.n_states)
+        xp, xo = z[:5], z[5:]
+        x0 = obs.Co @ xo + obs.Do_y @ (PLANT.C @ xp)
+        u, x_hat = law(x0)
+        np.testing.assert_allclose(u, cl.Fz @ z, rtol=1e-12, atol=1e-12)
+        x_ref, u_ff = rng.normal(size=3) * [1, 1, 0], rng.normal()
+        u, x_hat = law(x0, x_ref, u_ff)
+        np.testing.assert_allclose(x_hat, x0 + obs.Do_u @ u)
+        np.testing.assert_allclose(u, u_ff + ctrl.K @ (x_ref - x_hat), rtol=1e-12, atol=1e-12)
+
+
+def test_settling_ticks_from_the_spectral_radius():
+    """R_e holds from zero initial error; the transient after a start or gain change lasts
+    settling_ticks: the smallest k with rho^k <= tol (standard ln(tol)/ln(rho))."""
+    for rho in (0.5, 0.9, 0.9608459403371857, 0.999):
+        k = settling_ticks(rho)
+        assert rho ** k <= SETTLING_TOLERANCE < rho ** (k - 1)
+        assert k == int(np.ceil(np.log(SETTLING_TOLERANCE) / np.log(rho))) or rho ** (k - 1) > SETTLING_TOLERANCE
+    assert settling_ticks(0.9, tol=0.5, initial=0.25) == 0 and settling_ticks(0.0) == 1
+    assert settling_ticks(0.9, tol=1e-3, initial=10.0) == settling_ticks(0.9, tol=1e-4)
+    with pytest.raises(ValueError, match="does not settle"):
+        settling_ticks(1.0)
+    with pytest.raises(ValueError):
+        settling_ticks(0.9, tol=0.0)
+    # the Table II loop (hg, omega 15): its free response from a random initial error has
+    # decayed to the order of tol after settling_time ticks (a repeated pole, zeta = 1, adds
+    # a factor k to rho^k: the rate is asymptotic, not a bound of the transient's constant)
+    cl = close_loop(PLANT, *Gains(omega=15.0).build())
+    k = settling_time(cl)
+    assert k == settling_ticks(stability(cl).spectral_radius) == 173
+    z0 = np.random.default_rng(0).normal(size=cl.n_states)
+    z0[3] = 0.0   # the constant disturbance is not a transient (eigenvalue 1)
+    out = simulate(cl, np.zeros((3 * k, 5)), np.zeros((3 * k, 1)), z0)
+    assert np.all(np.abs(out[k:]).max(axis=0) <= 10 * SETTLING_TOLERANCE * np.abs(out).max(axis=0))
+    assert np.any(np.abs(out[: k // 2]).max(axis=0) > 10 * SETTLING_TOLERANCE * np.abs(out).max(axis=0))
+
+
+def _diag(start, ends, name="reachset_ros: controller"):
+    kv = [SimpleNamespace(key="transient_start_ns", value=str(start))]
+    kv += [SimpleNamespace(key=f"transient_end_ns/{j}", value=str(e)) for j, e in ends.items()]
+    return SimpleNamespace(status=[SimpleNamespace(name=name, values=kv)])
+
+
+def test_demo_share_inside_excludes_the_transient_after_each_gain_change():
+    """The demo's 'inside R*_e' share counts only the ticks outside the transient windows the
+    controller reported (after a start, gain change or braking)."""
+    dt = 4_000_000
+    stamps = [10**18 + k * dt for k in range(200)]
+    # a large error for 50 ticks after a gain change at tick 100, small elsewhere
+    err = {s: (0.5 if 100 <= k < 150 else 0.001) for k, s in enumerate(stamps)}
+    est = {s: SimpleNamespace(name=["a"], position=[err[s]], velocity=[0.0]) for s in stamps}
+    ref = {s: SimpleNamespace(name=["a"], position=[0.0], velocity=[0.0]) for s in stamps}
+    data = {ESTIMATE_TOPIC: est, REFERENCE_TOPIC: ref}
+    syn = {"a": {"re_radius": [0.01, 0.01]}}
+    diags = [_diag(stamps[100], {"a": stamps[100] + 60 * dt})] * 3 + [_diag(1, {"b": 2}, "other")]
+    windows = controller_transients(diags)
+    assert windows == {"a": [(stamps[100], stamps[100] + 60 * dt)]}
+    plain, _ = demo_tracking(data, syn, stamps[-1] + 1)
+    assert plain["a"]["share_inside"] == pytest.approx(150 / 200)
+    st, _ = demo_tracking(data, syn, stamps[-1] + 1, transients=windows)
+    assert st["a"]["share_inside"] == 1.0 and st["a"]["ticks"] == 140 and st["a"]["ticks_in_transient"] == 60
+    assert st["a"]["transient_s"] == pytest.approx(0.24)

@@ -305,3 +305,46 @@ def test_sweep_results_do_not_depend_on_the_block_size(lwa_data):
 
     a, b = collect(16384), collect(97)
     assert a == b and len(a) > 100000
+
+
+def test_minimum_horizon_from_the_plant():
+    """The first k* at which Theorem 1's rows mention every alpha (kernels.minimum_horizon),
+    computed from the plant: 2 for the LWA-4P joint (one sample of input and output delay)."""
+    p = lwa4p_joint_plant()
+    assert cf.minimum_horizon(p) == 2
+    thm = cf.Theorem1.build(p, 3)
+    n, ny = p.A.shape[0], p.C.shape[0]
+    aw = slice(n + ny, n + ny + p.Gw.shape[1])
+    assert not np.any(thm.Dp[1][:, aw]) and np.all(thm.Dp[2][:, aw] != 0)   # Theorem 1's own rows agree
+    direct = LinearPlant(A=[[1.0]], B=[[1.0]], C=[[1.0]], Gw=[[1.0]], Gv=[[1.0]])     # C G_W != 0
+    assert cf.minimum_horizon(direct) == 1
+    # a disturbance direction that never reaches the output does not count
+    hidden = LinearPlant(A=[[1.0, 0.0], [0.0, 1.0]], B=[[1.0], [0.0]], C=[[1.0, 0.0]],
+                         Gw=[[0.0, 0.0], [1.0, 0.0]], Gv=[[1.0]])
+    assert cf.minimum_horizon(hidden) == 0
+    delayed = LinearPlant(A=np.eye(3, k=1).T, B=[[1.0], [0.0], [0.0]], C=[[0.0, 0.0, 1.0]],
+                          Gw=[[1.0], [0.0], [0.0]], Gv=[[1.0]])        # W enters two shifts before y
+    assert cf.minimum_horizon(delayed) == 3
+    assert cf.require_minimum_horizon(p, 2) == (2, False)
+    assert cf.require_minimum_horizon(p, 0, allow_weak=True) == (2, True)
+    with pytest.raises(ReachsetError, match=r"^horizon 1 is below the minimum horizon 2 .*--allow-weak-horizon"):
+        cf.require_minimum_horizon(p, 1)
+
+
+def test_model_file_weak_horizon_fields_and_old_files(tmp_path):
+    p = lwa4p_joint_plant()
+    js = {"a": mdl.JointSets((0.0, 0.0), (1e-4,), (0,) * 5, (0.0,), 10, 1)}
+    old = mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 1, js)
+    mdl.save(old, tmp_path / "old.yaml")                       # as written before the fields existed
+    text = (tmp_path / "old.yaml").read_text()
+    assert "minimum_horizon" not in text and "horizon_below_minimum" not in text
+    back = mdl.load(tmp_path / "old.yaml")
+    assert back.minimum_horizon is None and back.horizon_below_minimum is False
+    weak = mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 1, js, 0.0, {}, 2, True)
+    mdl.save(weak, tmp_path / "weak.yaml")
+    back = mdl.load(tmp_path / "weak.yaml")
+    assert back.minimum_horizon == 2 and back.horizon_below_minimum is True
+    (tmp_path / "bad.yaml").write_text((tmp_path / "weak.yaml").read_text().replace(
+        "horizon_below_minimum: true", "horizon_below_minimum: maybe"))
+    with pytest.raises(ReachsetError, match="horizon_below_minimum must be true or false"):
+        mdl.load(tmp_path / "bad.yaml")

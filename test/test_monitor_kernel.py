@@ -129,6 +129,34 @@ def test_joint_monitor_equals_numpy_tick(plant_kind):
     assert seen == {"ok", "violation", "invalid", "gap_reset"}
 
 
+@pytest.mark.parametrize("kernel", [pytest.param(True, marks=needs_kernel), False])
+def test_longest_step_and_horizon_reached_say_how_much_was_checked(kernel):
+    """After each tick, per joint: the largest step k checked is min(valid ticks in the segment
+    - history - 1, k*) (-1 while nothing could be checked: the warm-up after a start, a gap
+    or an invalid sample), and the horizon is reached exactly when that is k*; a tick with
+    nothing checked is never conformant, for Monitor and for JointMonitor."""
+    p = lwa4p_joint_plant()
+    K, H = 40, 3
+    Y, U = closed_loop(p, 2200, 3, seed=1)
+    model, thm = model_for(p, Y[:1000], U[:1000], K=K, scale=1.02)
+    mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(3)]
+    mon = Monitor(mms, kernel=kernel)
+    jm = JointMonitor(mms[0])
+    stamps, Ys, Us = messy_stream(Y, U, seed=2)
+    seen = set()
+    for t in range(len(stamps)):
+        r = mon.tick(int(stamps[t]), Ys[t], Us[t])
+        q = jm.tick(int(stamps[t]), Ys[t, 0], Us[t, 0])
+        expect = np.where(mon.in_segment > H, np.minimum(mon.in_segment - H - 1, K), -1)
+        longest = mon.longest_step()
+        assert np.array_equal(longest, expect), (t, longest, expect)
+        assert np.array_equal(mon.reached_horizon(), expect == K), t
+        assert np.array_equal(r["checked"] > 0, longest >= 0), t
+        assert q.checked == r["checked"][0] and q.conformant == (q.checked > 0 and q.status in ("ok", "gap_reset"))
+        seen.update(int(x) for x in longest)
+    assert {-1, 0, K - 1, K} <= seen
+
+
 def test_numpy_fallback_when_the_kernel_does_not_apply():
     """A plant the kernel does not cover (two states) runs the numpy tick; kernel=True refuses it."""
     A = np.array([[1.0, 0.004], [0.0, 1.0]])

@@ -1,22 +1,29 @@
 """The node suite over real DDS: separate processes, parameter services, safe stop, watchdog."""
 import os
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from helpers import JOINTS, Recorder, plant_stream, write_model
+from helpers import JOINTS, PUB_QOS, Recorder, plant_stream, wait_until, write_model
 from reachset_ros import conformance as cf
 from reachset_ros import launch
 from reachset_ros.bags import read_messages
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.estimators import Estimator
-from reachset_ros.nodes.common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, to_stamp
+from reachset_ros.errors import ReachsetError
+from reachset_ros.nodes.common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns, to_stamp
+from reachset_ros.nodes.controller_node import ControllerNode
+from reachset_ros.nodes.gain_params import gains_from
+from reachset_ros.systems.closedloop import FeedbackLaw, close_loop, closed_loop_tick, settling_ticks, stability
+from reachset_ros.systems.gains import Gains
 from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
@@ -204,7 +211,8 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
         # every tick processed by the monitor (tick counter) and its status received, in order
         assert ticks[-1] >= 900 and ticks == list(range(ticks[0], ticks[0] + len(ticks)))
         assert len(status) >= 890
-        assert all(s.conformant for s in status[:fault_from])
+        # (a tick at which nothing was checked yet, the warm-up, is not conformant, and no violation)
+        assert all(s.conformant == (s.active_test_cases > 0) and min(s.margin) >= 0 for s in status[:fault_from])
         # the window bag was written
         assert spin_until(ros, lambda: os.path.isdir(stop.window_bag), 10.0), stop.window_bag
         # latched: a late subscriber sees it
@@ -407,7 +415,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
         h = m if topic == "/sim/fault_onset" else m.header
         st = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
         if topic == "/conformance/status":
-            verdicts.append((st, bool(m.conformant)))
+            verdicts.append((st, min(m.margin) >= 0))     # a violation is a margin < 0 (warm-up: not conformant)
         elif topic == "/safe_stop":
             stops.append((st, bool(m.active), m.kind))
         else:
@@ -569,3 +577,169 @@ def test_parameter_request_left_unanswered_is_sent_again(ros):
     finally:
         ex.shutdown()
         server.destroy_node()
+
+
+# ------------------------------------------------------------------ the deployed loop is the certified loop (issue 14)
+#: every observer/controller kind the nodes run, with both plant inputs of the ESO
+LOOP_KINDS = [
+    {"observer": "hg", "controller": "static", "eso_input": "previous"},
+    {"observer": "eso", "controller": "static", "eso_input": "previous"},
+    {"observer": "eso", "controller": "static", "eso_input": "current"},
+    {"observer": "eso", "controller": "compensated", "eso_input": "previous"},
+    {"observer": "eso", "controller": "compensated", "eso_input": "current"},
+]
+#: different gains per joint (Table III's ESO rows), all stable in every kind
+LOOP_GAINS = {"omega": [12.0, 14.0, 16.0, 18.0, 20.0, 22.0], "zeta": [1.0, 0.9, 1.1, 1.0, 0.8, 1.0],
+              "h1": [15.0], "h2": [30.0], "l1": [57.1, 93.5, 75.6, 80.5, 57.1, 57.1],
+              "l2": [103.3, 182.0, 113.7, 153.4, 103.3, 103.3], "l3": [18.1, 37.9, 16.5, 30.1, 18.1, 18.1],
+              "eps": [0.01]}
+
+
+def core_tick(loops, states, y, q_d, qd_d, qdd_d):
+    """The certified loop's tick per joint (closed_loop_tick): (x0, u) per joint; advances ``states``."""
+    out = {}
+    for i, (j, (obs, ctrl)) in enumerate(loops.items()):
+        st = states[j]
+        x0 = st.partial_estimate([y[i]])
+        x_ref = np.array([{"q": q_d[i], "qd": qd_d[i]}.get(n, 0.0) for n in obs.estimate_names])
+        u, _, states[j] = closed_loop_tick(st, ctrl, [y[i]], x_ref, qdd_d[i])
+        out[j] = (dict(zip(obs.estimate_names, x0)), u[0])
+    return out
+
+
+def test_node_parameters_and_law_are_the_certified_ones():
+    """The nodes' parameters become the one Gains type with eso_input, and the controller's
+    law (ControllerNode.law_input) is the core's FeedbackLaw: bit-equal to closed_loop_tick,
+    including the algebraic loop of the ESO fed u_p[k] (which the hand-written law lacked)."""
+    rng = np.random.default_rng(5)
+    for kind in LOOP_KINDS:
+        gains = gains_from({**kind, **LOOP_GAINS}, ALL_JOINTS)
+        for i, j in enumerate(ALL_JOINTS):
+            assert gains[j] == Gains(**kind, **{k: (v[i] if len(v) > 1 else v[0]) for k, v in LOOP_GAINS.items()})
+        loops = {j: g.build(0.004) for j, g in gains.items()}
+        if kind["eso_input"] == "current" and kind["observer"] == "eso":
+            assert all(np.any(obs.Do_u != 0) for obs, _ in loops.values())
+        node = SimpleNamespace(laws={j: FeedbackLaw.of(c, o) for j, (o, c) in loops.items()},
+                               slots={j: o.estimate_names for j, (o, c) in loops.items()})
+        states = {j: o.start_state(0.1) for j, (o, c) in loops.items()}
+        for _ in range(50):
+            y, q_d, qd_d, qdd_d = rng.uniform(-1, 1, (4, 6))
+            core = core_tick(loops, states, y, q_d, qd_d, qdd_d)
+            for i, j in enumerate(ALL_JOINTS):
+                x0, u = core[j]
+                got = ControllerNode.law_input(node, j, x0["q"], x0["qd"], x0.get("d", 0.0), q_d[i], qd_d[i], qdd_d[i])
+                assert got == u, (kind, j)
+    # refused: an unknown ESO input; a model whose dt is not the controller's (its loop would differ)
+    with pytest.raises(ReachsetError, match="eso_input must be previous or current"):
+        gains_from({**LOOP_KINDS[0], "eso_input": "later", **LOOP_GAINS}, ALL_JOINTS)
+    ctl = SimpleNamespace(joints=ALL_JOINTS, dt=0.004)
+    values = {**LOOP_KINDS[4], **LOOP_GAINS, "u_max": [26.0], "u_ff_bound": 2.0}
+    cfg = ControllerNode.validate(ctl, values, None)
+    assert set(cfg["laws"]) == set(ALL_JOINTS) and all(k > 0 for k in cfg["settling"].values())
+    with pytest.raises(ReachsetError, match="model's dt 0.002 s differs from the controller's dt 0.004 s"):
+        ControllerNode.validate(ctl, values, SimpleNamespace(plant=lwa4p_joint_plant(dt=0.002), joints={}))
+
+
+def _latest_controller_diag(rec, cond=lambda kv: True):
+    for _t, arr in reversed(list(rec.msgs["diagnostics"])):
+        for st in arr.status:
+            if st.name == "reachset_ros: controller":
+                kv = {v.key: v.value for v in st.values}
+                if cond(kv):
+                    return st.level, st.message, kv
+    return None
+
+
+def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tmp_path):
+    """observer_node + controller_node over DDS, fed random /joint_states and /reference, for
+    every observer/controller kind (both ESO inputs; switched live through the parameter
+    services): each tick's published estimate and /plant_input equal the certified closed
+    loop's (closed_loop_tick on the Gains' observer and controller) to the bit. Each switch
+    starts a transient the controller reports with the closed loop's settling time; a
+    reference with |qdd_d| > u_ff_bound is flagged on /diagnostics, and still controlled by the law."""
+    params = {"joints": ALL_JOINTS, **LOOP_KINDS[0], **LOOP_GAINS}
+    obs_p = launch.start("observer_node", params, tmp_path)
+    ctl_p = launch.start("controller_node", {**params, "reference_timeout": 1.0, "u_ff_bound": 2.0}, tmp_path)
+    rec = Recorder("loop_listener", {"plant_input": PlantInput, "observer/estimate": JointEstimate,
+                                     "diagnostics": DiagnosticArray})
+    js_pub = ros.create_publisher(JointState, "joint_states", PUB_QOS)
+    ref_pub = ros.create_publisher(JointReference, "reference", PUB_QOS)
+    t0, dt_ns = 10**18, 4_000_000
+    k = [0]
+
+    def by_stamp(topic, t):
+        return next((m for _w, m in reversed(list(rec.msgs[topic])) if stamp_ns(m.header.stamp) == t), None)
+
+    def tick(y, q_d, qd_d, qdd_d):
+        k[0] += 1
+        t = t0 + k[0] * dt_ns
+        r = JointReference(name=ALL_JOINTS, position=[float(v) for v in q_d], velocity=[float(v) for v in qd_d],
+                           acceleration=[float(v) for v in qdd_d])
+        to_stamp(r.header.stamp, t)
+        js = JointState(name=ALL_JOINTS, position=[float(v) for v in y])
+        to_stamp(js.header.stamp, t)
+        ref_pub.publish(r)
+        js_pub.publish(js)
+        assert wait_until(lambda: by_stamp("plant_input", t) is not None and by_stamp("observer/estimate", t)
+                          is not None, 15.0), (k[0], by_stamp("plant_input", t), by_stamp("observer/estimate", t),
+                                               ctl_p.log.read_text()[-2000:], obs_p.log.read_text()[-2000:])
+        time.sleep(0.03)   # the observer takes the plant input before the next measurement
+        return t, by_stamp("observer/estimate", t), by_stamp("plant_input", t)
+
+    try:
+        assert wait_until(lambda: js_pub.get_subscription_count() >= 1 and ref_pub.get_subscription_count() >= 1
+                          and ros.count_subscribers("/plant_input") >= 2
+                          and ros.count_subscribers("/observer/estimate") >= 2
+                          and rec.node.count_publishers("/plant_input") >= 1
+                          and rec.node.count_publishers("/observer/estimate") >= 1, 60.0), ctl_p.log.read_text()
+        time.sleep(0.5)
+        rng = np.random.default_rng(14)
+        plant = lwa4p_joint_plant()
+        for n_kind, kind in enumerate(LOOP_KINDS):
+            if n_kind:   # a live switch, as the synthesis node applies gains
+                for node in ("observer_node", "controller_node"):
+                    ok, why = set_remote_parameters(ros, node, kind)
+                    assert ok, (node, why)
+            loops = {j: g.build(0.004) for j, g in gains_from({**kind, **LOOP_GAINS}, ALL_JOINTS).items()}
+            states, first = None, None
+            for _ in range(25):
+                y = rng.uniform(-0.5, 0.5, 6)
+                q_d, qd_d, qdd_d = rng.uniform(-0.5, 0.5, 6), rng.uniform(-1, 1, 6), rng.uniform(-2, 2, 6)
+                t, est, pi = tick(y, q_d, qd_d, qdd_d)
+                first = first or t
+                if states is None:   # the observer (re)starts at its first measurement
+                    states = {j: o.start_state(y[i]) for i, (j, (o, c)) in enumerate(loops.items())}
+                core = core_tick(loops, states, y, q_d, qd_d, qdd_d)
+                ei = {n: i for i, n in enumerate(est.name)}
+                ui = {n: i for i, n in enumerate(pi.name)}
+                for j, (x0, u) in core.items():
+                    got = (est.position[ei[j]], est.velocity[ei[j]], est.disturbance[ei[j]], pi.acceleration[ui[j]])
+                    want = (x0["q"], x0["qd"], x0.get("d", 0.0), u)
+                    assert got == want, (kind, j, t, got, want)
+            # the switch (or the start) began a transient: reported with each joint's settling time
+            assert wait_until(lambda: _latest_controller_diag(rec, lambda kv: kv.get("transient_start_ns") == str(first))
+                              is not None, 5.0), kind
+            _lvl, _msg, kv = _latest_controller_diag(rec, lambda kv: kv.get("transient_start_ns") == str(first))
+            for j, (o, c) in loops.items():
+                n = settling_ticks(stability(close_loop(plant, o, c)).spectral_radius)
+                assert kv[f"settling_ticks/{j}"] == str(n) and kv[f"transient_end_ns/{j}"] == str(first + n * dt_ns)
+            assert kv["transient_cause"] == ("start-up" if n_kind == 0 else "gain change")
+        # a reference outside the class R_u is certified for (|qdd_d| > u_ff_bound = 2): the
+        # same law runs, and the tick is flagged on /diagnostics at once (WARN, stamp, joint)
+        y, q_d, qd_d = rng.uniform(-0.5, 0.5, (3, 6))
+        qdd_d = rng.uniform(-2, 2, 6)
+        qdd_d[2] = -3.5
+        t, est, pi = tick(y, q_d, qd_d, qdd_d)
+        core = core_tick(loops, states, y, q_d, qd_d, qdd_d)
+        assert [pi.acceleration[list(pi.name).index(j)] for j in ALL_JOINTS] == [core[j][1] for j in ALL_JOINTS]
+        assert wait_until(lambda: _latest_controller_diag(
+            rec, lambda kv: kv.get("reference_out_of_class_last_ns") == str(t)) is not None, 5.0)
+        lvl, msg, kv = _latest_controller_diag(rec, lambda kv: kv.get("reference_out_of_class_last_ns") == str(t))
+        assert lvl == DiagnosticStatus.WARN, (lvl, msg)
+        assert kv["reference_out_of_class"] == "1" and kv["reference_out_of_class_joint"] == ALL_JOINTS[2]
+        assert "out of class" in msg and "u_ff_bound" in msg
+    finally:
+        launch.stop([ctl_p, obs_p])
+        rec.close()
+        ros.destroy_publisher(js_pub)
+        ros.destroy_publisher(ref_pub)

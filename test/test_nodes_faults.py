@@ -217,6 +217,78 @@ def test_core_burst_larger_than_pending_drops_oldest_counted(model):
     assert c["ticks"] == core.max_pending and not core.pending
 
 
+HISTORY = 3     # the fd estimator's history: ticks of a segment before its first test case
+
+
+def test_core_clean_stream_warm_up_is_not_conformant_nor_a_fault(model):
+    """A normal 250 Hz stream: the first ``history`` ticks check nothing and are not
+    conformant (but no violation: margin +inf), every later tick is; no coverage fault."""
+    core = MonitorCore(mdl.load(model))
+    Y, U = stream(400, seed=4)
+    ticks = ticks_of(feed(core, stamps(400), Y, U))
+    assert len(ticks) == 400 and not core.counters["coverage_faults"]
+    assert [e.conformant for e in ticks] == [False] * HISTORY + [True] * (400 - HISTORY)
+    assert all(max(e.result["checked"]) == 0 and min(e.result["margin"]) > 0 and e.longest == -1
+               for e in ticks[:HISTORY])
+    assert [e.longest for e in ticks[HISTORY:HISTORY + HORIZON + 2]] == list(range(HORIZON + 1)) + [HORIZON]
+    assert core.coverage.share == (400 - HISTORY - HORIZON) / 400
+
+
+@pytest.mark.parametrize("case", ["125Hz", "300Hz", "every_4th_lost", "every_8th_lost"])
+def test_core_stream_that_cannot_form_the_test_cases_is_a_coverage_fault(model, case):
+    """A stream whose period is not the model's 4 ms (125 Hz: every step a gap; 300 Hz: no
+    gap, the wrong time grid), or whose losses keep every test case short of k*, ends in a
+    ``coverage`` fault within the missing-data limit (after the warm-up that the checks
+    need) that names the measured period; no tick at which nothing was checked is conformant."""
+    mm = 25                                        # max_missing_ticks, the default
+    core = MonitorCore(mdl.load(model))
+    n = 400
+    Y, U = stream(n, seed=4)
+    base = stamps(3 * n)[0]
+    step = {"125Hz": 2 * DT_NS, "300Hz": 3_333_333}.get(case, DT_NS)
+    ts = [base + k * step for k in range(n)]
+    lost = {"every_4th_lost": set(range(3, n, 4)), "every_8th_lost": set(range(7, n, 8))}.get(case, set())
+    ev = feed(core, ts, Y, U, drop_y=lost, drop_u=lost)
+    f = faults_of(ev)
+    assert f and all(e.kind == "coverage" for e in f), f
+    first = f[0]
+    ticks = [e for e in ticks_of(ev) if e.stamp <= first.stamp]
+    assert not [e for e in ticks if e.conformant and max(e.result["checked"]) == 0]
+    assert all(min(e.result["margin"]) >= 0 for e in ticks)        # no violation was claimed
+    late = first.stamp - ts[0]
+    if case == "125Hz":
+        # nothing is ever checked: never conformant; the fault within the limit after the warm-up
+        assert not any(e.conformant for e in ticks) and all(e.longest == -1 for e in ticks)
+        assert late <= (HISTORY + mm) * DT_NS + step, late
+        assert "nothing checked" in first.reason and "measured stream period 8 ms" in first.reason, first.reason
+    elif case == "300Hz":
+        assert late <= (HISTORY + mm) * DT_NS, late
+        assert "measured stream period 3.333 ms" in first.reason and "dt 4 ms" in first.reason, first.reason
+    elif case == "every_4th_lost":
+        # segments of 3 ticks: no test case can start, nothing is ever checked
+        assert not any(e.conformant for e in ticks)
+        assert late <= (HISTORY + mm) * DT_NS + 2 * DT_NS, late
+        assert "nothing checked" in first.reason and "gaps" in first.reason, first.reason
+    else:
+        # segments of 7 ticks: steps 0..3 are checked, never k*; conformant only where checked
+        assert max(e.longest for e in ticks) == 3
+        assert all(e.conformant == (e.longest >= 0) for e in ticks)
+        assert late <= (HISTORY + HORIZON + mm) * DT_NS + 2 * DT_NS, late
+        assert f"no test case reached the horizon k*={HORIZON}" in first.reason, first.reason
+        assert "longest step checked 3 of 25" in first.reason and "measured stream period 4 ms" in first.reason
+
+
+def test_core_a_single_gap_is_no_coverage_fault(model):
+    """One loss of 24 ticks (under the missing-data limit of 25) restarts the test cases but
+    is no coverage fault; nor is a pause longer than the limit (the watchdog's business)."""
+    core = MonitorCore(mdl.load(model))                # max_missing_ticks 25
+    Y, U = stream(600, seed=5)
+    ts = stamps(600)
+    ev = feed(core, ts, Y, U, drop_y=set(range(100, 124)) | set(range(300, 500)),
+              drop_u=set(range(100, 124)) | set(range(300, 500)))
+    assert not faults_of(ev) and len(ticks_of(ev)) == 600 - 224
+
+
 def test_core_joint_list_must_be_in_the_model(model):
     with pytest.raises(ReachsetError, match="arm_3_joint is not in the model"):
         MonitorCore(mdl.load(model), ["arm_1_joint", "arm_3_joint"])
@@ -225,6 +297,18 @@ def test_core_joint_list_must_be_in_the_model(model):
 
 
 # ============================================================ real processes over DDS
+def warm_up_then_conformant(st, segments=1):
+    """Statuses of a clean stream: conformant, except at the first ``HISTORY`` ticks of each
+    of its ``segments`` (after a start, reset or gap), where nothing was checked and the
+    status says so (not conformant, no test case, tightest step -1, no violation). With
+    ``segments=None`` only the rule is checked, not the count."""
+    unchecked = [s for s in st if not s.active_test_cases]
+    assert all(s.conformant for s in st if s.active_test_cases), "a checked tick not conformant"
+    assert all(not s.conformant and set(s.tightest_step) == {-1} and min(s.margin) > 0 for s in unchecked)
+    assert segments is None or len(unchecked) == HISTORY * segments, (len(unchecked), segments)
+    return True
+
+
 @pytest.fixture(scope="module")
 def bus():
     rclpy.init()
@@ -303,7 +387,7 @@ class TestMonitorNode:
         bus.send_ticks(ts, Y, U)
         assert bus.wait(lambda: len(bus.statuses(ts)) == 40), len(bus.statuses(ts))
         st = bus.statuses(ts)
-        assert all(s.conformant and not s.safe_stop_active for s in st)
+        assert all(not s.safe_stop_active for s in st) and warm_up_then_conformant(st)
 
     @pytest.mark.parametrize("case, kind, joint, words", BAD_CASES)
     def test_bad_sample_latches_safe_stop_with_reason(self, bus, mon, case, kind, joint, words):
@@ -322,9 +406,10 @@ class TestMonitorNode:
         assert words in stop.reason, stop.reason
         # no verdict before it was wrong, none for the bad tick; checking went on afterwards
         assert bus.wait(lambda: len(bus.statuses(ts[62:])) == 28), len(bus.statuses(ts[62:]))
-        assert all(s.conformant for s in bus.statuses(ts[:60]))
+        assert warm_up_then_conformant(bus.statuses(ts[:60]))
         assert not [s for s in bus.statuses(ts) if stamp_ns(s.header.stamp) == ts[60]]
-        assert all(s.safe_stop_active and s.conformant for s in bus.statuses(ts[62:]))
+        assert all(s.safe_stop_active for s in bus.statuses(ts[62:]))
+        assert warm_up_then_conformant(bus.statuses(ts[62:]))
         assert len(bus.active_stops()) == 1   # first cause wins; later ones do not re-publish
         self.alive_and_checking(bus, proc)
 
@@ -356,7 +441,7 @@ class TestMonitorNode:
             bus.send_u(t, JOINTS + ["other_joint"], list(U[k]) + [math.nan])
             time.sleep(0.002)
         assert bus.wait(lambda: len(bus.statuses(ts)) == 50)
-        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+        assert warm_up_then_conformant(bus.statuses(ts)) and not bus.active_stops()
 
         def delta():
             c = bus.counters()
@@ -375,7 +460,7 @@ class TestMonitorNode:
         bus.send_u(ts[40], JOINTS, U[40])
         bus.send_ticks(ts[41:], Y[41:], U[41:])
         assert bus.wait(lambda: len(bus.statuses(ts)) == 60), len(bus.statuses(ts))
-        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+        assert warm_up_then_conformant(bus.statuses(ts)) and not bus.active_stops()
 
         def delta():
             c = bus.counters()
@@ -390,7 +475,7 @@ class TestMonitorNode:
         assert bus.wait(lambda: len(bus.statuses(ts)) == 295), len(bus.statuses(ts))
         got = [stamp_ns(s.header.stamp) for s in bus.statuses(ts)]
         assert got == [t for k, t in enumerate(ts) if k not in (100, 150, 200, 201, 202)]
-        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+        assert warm_up_then_conformant(bus.statuses(ts), segments=4) and not bus.active_stops()
 
         def delta():
             c = bus.counters()
@@ -417,7 +502,7 @@ class TestMonitorNode:
         got = [stamp_ns(s.header.stamp) for s in st]
         assert got and got[-1] >= ts[n]
         assert got == sorted(got) and len(set(got)) == len(got)
-        assert all(s.conformant for s in st) and not bus.active_stops()
+        assert warm_up_then_conformant(st, segments=None) and not bus.active_stops()
         # the diagnostics account for every tick between the first and the last checked one
         assert bus.wait(lambda: bus.counters()["ticks"] - before.get("ticks", 0) >= len(st))
         c = bus.counters()
@@ -454,7 +539,7 @@ class TestMonitorNode:
         assert c.get("ticks", 0) == before.get("ticks", 0)
         bus.send_ticks(ts[500:], Y[500:], U[500:])
         assert bus.wait(lambda: len(bus.statuses(ts)) == 200)
-        assert all(s.conformant for s in bus.statuses(ts)) and not bus.active_stops()
+        assert warm_up_then_conformant(bus.statuses(ts)) and not bus.active_stops()
         self.alive_and_checking(bus, proc)
 
     def test_stamps_that_never_pair_are_missing_data(self, bus, mon):
@@ -493,8 +578,49 @@ class TestMonitorNode:
         assert stops and stops[0].kind == "missing_data", stops
         assert "/joint_states silent for" in stops[0].reason, stops[0].reason
         assert bus.wait(lambda: len(bus.statuses(ts[:100])) == 100)
-        assert all(s.conformant for s in bus.statuses(ts[:100]))
+        assert warm_up_then_conformant(bus.statuses(ts[:100]))
         assert stamp_ns(stops[0].header.stamp) == ts[99]   # the last tick checked
+        self.alive_and_checking(bus, proc)
+
+    def test_stream_at_the_wrong_period_is_a_coverage_stop(self, bus, mon):
+        """/joint_states and /plant_input at 125 Hz for a 4 ms model: every step is a gap, so
+        nothing is ever checked. No status says conformant; a latched safe stop of kind
+        ``coverage`` names the measured period, within the missing-data limit after the
+        warm-up; /diagnostics says nothing was checked."""
+        proc, _, _ = mon
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})   # 200 ms: no watchdog stop on a stall
+        assert ok, why
+        Y, U = stream(200, seed=15)
+        base = stamps(400)[0]
+        ts = [base + 2 * DT_NS * k for k in range(200)]
+        for k, t in enumerate(ts):
+            bus.send_y(t, JOINTS, Y[k])
+            bus.send_u(t, JOINTS, U[k])
+            time.sleep(0.008)
+            if bus.active_stops():
+                break
+        assert bus.wait(lambda: bus.active_stops())
+        stop = bus.active_stops()[0]
+        assert stop.kind == "coverage" and "measured stream period 8 ms" in stop.reason, stop
+        assert "nothing checked" in stop.reason and "dt of 4 ms" in stop.reason, stop.reason
+        at = stamp_ns(stop.header.stamp)
+        assert at - ts[0] <= (HISTORY + 50) * DT_NS + 2 * DT_NS, (at - ts[0]) / 1e6
+        assert bus.wait(lambda: bus.statuses([ts[0], at]) and stamp_ns(bus.statuses([ts[0], at])[-1].header.stamp) == at)
+        st = bus.statuses(ts)
+        assert st and not any(s.conformant for s in st), [s.conformant for s in st]
+        assert all(s.active_test_cases == 0 and set(s.tightest_step) == {-1} for s in st)
+        c = bus.counters(newer_than=time.monotonic())
+        assert c["longest_step"] == -1 and c["unchecked_ticks"] >= len(st) and c["coverage_faults"] >= 1, c
+        # latched: a late subscriber sees it
+        late = []
+        sub = bus.caller.create_subscription(SafeStop, "safe_stop", late.append, SAFE_STOP_QOS)
+        try:
+            end = time.monotonic() + 10
+            while time.monotonic() < end and not late:
+                rclpy.spin_once(bus.caller, timeout_sec=0.1)
+            assert late and late[-1].active and late[-1].kind == "coverage"
+        finally:
+            bus.caller.destroy_subscription(sub)
         self.alive_and_checking(bus, proc)
 
     def test_bad_parameter_updates_are_refused_and_change_nothing(self, bus, mon, tmp_path):
@@ -528,7 +654,8 @@ class TestMonitorNode:
         ts = stamps(60)
         bus.send_ticks(ts, Y, U)
         assert bus.wait(lambda: len(bus.statuses(ts)) == 60)
-        assert all(s.model_id == model_id and s.conformant and list(s.name) == JOINTS for s in bus.statuses(ts))
+        assert all(s.model_id == model_id and list(s.name) == JOINTS for s in bus.statuses(ts))
+        assert warm_up_then_conformant(bus.statuses(ts))
         assert not bus.active_stops()
         # a valid update is applied (the refusals above were not vacuous), and back
         ok, why = bus.set_params("monitor_node", {"model_file": str(other), "joints": ["arm_2_joint"]})

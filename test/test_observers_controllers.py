@@ -3,10 +3,14 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete
 
+from reachset_ros.errors import ReachsetError
+from reachset_ros.synthesis.config import SearchSpace, components_from_gains, load_config
+from reachset_ros.systems.closedloop import analyze, close_loop
 from reachset_ros.systems.controllers import (LinearController, compensated_feedback, control_input, lqg, lqr,
                                       static_feedback)
 from reachset_ros.systems.observers import (LinearObserver, bilinear, extended_state_observer, high_gain_observer,
                                     kalman_filter, paper_lqg_covariances)
+from reachset_ros.systems.gains import Gains
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
 
 
@@ -119,3 +123,46 @@ def test_controllers():
     with pytest.raises(ValueError):
         LinearObserver(np.eye(2), np.ones((2, 1)), np.zeros((2, 1)), np.eye(2), np.zeros((2, 1)),
                        np.zeros((3, 1)), ("q", "qd"))
+
+
+# ------------------------------------------------------------------ one gains type (issue 14.5)
+def test_gains_carry_eso_input_through_synthesis_model_file_and_nodes():
+    """One gains type: the synthesis' search space and the model file both become a Gains
+    that keeps eso_input, and both paths build the same observer (with eso_input current:
+    the ESO fed u_p[k], Do_u != 0). The nodes' parameters: test_nodes.py."""
+    g = Gains(observer="eso", controller="compensated", omega=20.0, l1=57.1, l2=103.3, l3=18.1, eso_input="current")
+    d = g.model_dict()
+    assert d["eso_input"] == "current" and Gains.from_model(d) == g
+    assert Gains.from_dict(g.as_dict()) == g
+    assert np.any(g.build_observer().Do_u != 0)
+    # synthesis: the search space builds through Gains and writes its model_dict
+    sp = SearchSpace.from_config(load_config(), "eso", eso_input="current")
+    values = sp.values
+    assert sp.gains(values)["eso_input"] == "current"
+    assert sp.to_gains(values) == Gains.from_model(sp.gains(values))
+    assert SearchSpace.from_gains(d).to_gains(SearchSpace.from_gains(d).values) == g
+    # the model file's gains give the same loop
+    obs_s, _ = sp.build(values)
+    obs_m, _ = components_from_gains(sp.gains(values))
+    for a in ("Ao", "Bo_y", "Bo_u", "Co", "Do_y", "Do_u"):
+        np.testing.assert_array_equal(getattr(obs_s, a), getattr(obs_m, a))
+    # an old model file without eso_input means "previous"; an unknown value is refused
+    old = {k: v for k, v in d.items() if k != "eso_input"}
+    assert Gains.from_model(old).eso_input == "previous"
+    with pytest.raises(ReachsetError, match="eso_input"):
+        Gains.from_model({**d, "eso_input": "later"})
+    with pytest.raises(ReachsetError, match="missing l3"):
+        Gains.from_model({k: v for k, v in d.items() if k != "l3"})
+
+
+def test_certified_norm_is_the_deployed_norm_for_eso_input_current():
+    """The issue's numbers: with eso_input current the loop the nodes build from the model's
+    gains has the certified ||R_e|| (0.5315 for Table III axis 1), not the 'previous' ESO's."""
+    plant = lwa4p_joint_plant()
+    aw, av = [0.0234, 3.587], [3.49e-5]
+    cur = Gains(observer="eso", controller="compensated", omega=20.0, l1=57.1, l2=103.3, l3=18.1,
+                eso_input="current")
+    certified = analyze(close_loop(plant, *cur.build()), aw, av, u_ff=2.0).re_norm
+    deployed = analyze(close_loop(plant, *components_from_gains(cur.model_dict())), aw, av, u_ff=2.0).re_norm
+    prev = analyze(close_loop(plant, *cur.with_(eso_input="previous").build()), aw, av, u_ff=2.0).re_norm
+    assert deployed == certified and abs(prev - certified) > 1e-3 * certified

@@ -395,7 +395,9 @@ def test_infeasible_synthesis_names_the_binding_constraint(case, tmp_path, clean
     cfg.write_text(yaml.safe_dump({"search": SMALL_SEARCH}))
     out = tmp_path / "out" / "gains.yaml"
     out.parent.mkdir()
-    base = ["synthesize", clean_bag, "--joints", "arm_1_joint", "--horizon", HORIZON, "--config", cfg]
+    # the bag has no /reference: the class of constant-velocity references (zero reference error)
+    refs = ["--reference-class", "qdd_max=0"]
+    base = ["synthesize", clean_bag, "--joints", "arm_1_joint", "--horizon", HORIZON, "--config", cfg, *refs]
     if case == "u_ff_exceeds_u_p":
         argv, want = base + ["--u-max", "1.5"], (
             r"joint arm_1_joint: combined synthesis: U_ff \(\+-2\) and the reference error \(0\) alone "
@@ -407,7 +409,7 @@ def test_infeasible_synthesis_names_the_binding_constraint(case, tmp_path, clean
             r"zeta=[0-9.]+\)$")
     else:
         gains = tmp_path / "g.yaml"
-        assert run(["synthesize", clean_bag, "--horizon", HORIZON, "--config", cfg, "--u-max", "8",
+        assert run(["synthesize", clean_bag, "--horizon", HORIZON, "--config", cfg, "--u-max", "8", *refs,
                     "--out", gains], capsys)[0] == 0
         argv, want = ["synthesize", clean_bag, "--mode", "reidentify", "--model", gains, "--u-max", "3"], (
             r"joint arm_1_joint: re-identification with the fixed controller: the controller cannot keep R_u "
@@ -627,3 +629,91 @@ def test_unpaired_samples_are_counted(tmp_path, data, capsys):
     assert sets_of(got) == sets_of(want)
     assert got["data"]["unpaired"] == {"arm_1_joint": 2, "arm_2_joint": 2}
     assert got["data"]["gaps"] == {"arm_1_joint": 2, "arm_2_joint": 2}
+
+
+# ------------------------------------------------------------------ guarantee integrity (issue 14)
+@pytest.mark.parametrize("cmd", ["identify", "synthesize"])
+@pytest.mark.parametrize("horizon", [0, 1])
+def test_horizon_below_the_minimum_is_refused(cmd, horizon, tmp_path, clean_bag, capsys):
+    """k* = 0 or 1 leaves alpha_W out of every Theorem-1 row of the LWA-4P joint plant (one
+    sample of input and output delay): refused, naming the minimum 2 and the flag."""
+    out = tmp_path / "out" / "m.yaml"
+    out.parent.mkdir()
+    code, so, se = run([cmd, clean_bag, "--horizon", horizon, "--out", out], capsys)
+    assert_one_line_error(code, so, se, cmd, [f"horizon {horizon} is below the minimum horizon 2",
+                                              "--allow-weak-horizon"])
+    assert_no_output(out)
+
+
+def test_weak_horizon_only_with_the_flag_and_recorded(tmp_path, clean_bag, capsys):
+    out = tmp_path / "weak.yaml"
+    d = run_json(["identify", clean_bag, "--horizon", 1, "--allow-weak-horizon", "--out", out], capsys)
+    assert d["horizon_below_minimum"] is True and d["minimum_horizon"] == 2 and d["horizon"] == 1
+    assert all(j["alpha_w"] == [0.0, 0.0] for j in d["joints"].values())   # what the rule guards against
+    raw = yaml.safe_load(out.read_text())
+    assert raw["horizon_below_minimum"] is True and raw["minimum_horizon"] == 2
+    m = mdl.load(out)
+    assert m.horizon_below_minimum and m.minimum_horizon == 2
+    # at the minimum: no flag needed, nothing weak recorded, alpha_W constrained by the data
+    ok = tmp_path / "ok.yaml"
+    d = run_json(["identify", clean_bag, "--horizon", 2, "--out", ok], capsys)
+    assert d["horizon_below_minimum"] is False and d["minimum_horizon"] == 2
+    assert all(max(j["alpha_w"]) > 0 for j in d["joints"].values())
+    raw = yaml.safe_load(ok.read_text())
+    assert "horizon_below_minimum" not in raw and raw["minimum_horizon"] == 2
+
+
+def test_synthesize_weak_horizon_recorded(tmp_path, clean_bag, capsys):
+    """``synthesize`` obeys the same rule (one function, also used by the synthesis node's
+    child process): a re-identification at k* = 1 is refused, and with the flag recorded."""
+    cfg = tmp_path / "synthesis.yaml"
+    cfg.write_text(yaml.safe_dump({"search": SMALL_SEARCH}))
+    gains, out = tmp_path / "gains.yaml", tmp_path / "weak.yaml"
+    refs = ["--reference-class", "qdd_max=2"]
+    d = run_json(["synthesize", clean_bag, "--joints", "arm_1_joint", "--horizon", HORIZON, "--config", cfg,
+                  *refs, "--out", gains], capsys)
+    assert d["horizon_below_minimum"] is False and d["minimum_horizon"] == 2
+    base = ["synthesize", clean_bag, "--mode", "reidentify", "--model", gains, "--horizon", 1, *refs]
+    code, so, se = run([*base, "--out", out], capsys)
+    assert_one_line_error(code, so, se, "synthesize", ["horizon 1 is below the minimum horizon 2",
+                                                       "--allow-weak-horizon"])
+    assert_no_output(out)
+    d = run_json([*base, "--allow-weak-horizon", "--out", out], capsys)
+    assert d["horizon_below_minimum"] is True and d["minimum_horizon"] == 2 and d["horizon"] == 1
+    m = mdl.load(out)
+    assert m.horizon_below_minimum and m.minimum_horizon == 2 and m.horizon == 1
+    # re-identifying that model keeps its horizon: refused again without the flag
+    code, so, se = run(["synthesize", clean_bag, "--mode", "reidentify", "--model", out, *refs], capsys)
+    assert_one_line_error(code, so, se, "synthesize", ["horizon 1 is below the minimum horizon 2"])
+
+
+def test_check_and_replay_agree_at_bag_boundaries(tmp_path, capsys):
+    """Two different recordings, the second stamped exactly one tick after the first, as two
+    bags: ``check`` cuts the test cases at the bag boundary, and so must ``replay`` (on
+    555f6a7 replay continued the first recording's test cases into the second)."""
+    n = 300
+    parts = []
+    for seeds, offset in (((41, 42), 0.0), ((51, 52), 0.4)):      # a second run, elsewhere in the workspace
+        y, u = np.empty((n, 2)), np.empty((n, 2))
+        for j, seed in enumerate(seeds):
+            y[:, j], u[:, j] = simulate(n, seed, alpha_w=(0.05, 2.0))
+        parts.append((y + offset, u))
+    stamps_a = T0 + DT_NS * np.arange(n)
+    stamps_b = stamps_a[-1] + DT_NS * (1 + np.arange(n))          # exactly one tick after the first bag
+    bag_a = write_bag(tmp_path / "a", clean_rows(stamps_a, *parts[0]))
+    bag_b = write_bag(tmp_path / "b", clean_rows(stamps_b, *parts[1]))
+    model = tmp_path / "m.yaml"
+    assert run(["identify", bag_a, bag_b, "--horizon", HORIZON, "--out", model], capsys)[0] == 0
+    m = mdl.load(model)
+    tight = tmp_path / "tight.yaml"
+    mdl.save(m.with_joints({n_: mdl.JointSets(tuple(0.6 * a for a in j.alpha_w), tuple(0.6 * a for a in j.alpha_v),
+                                              j.c_w, j.c_v, j.test_cases, j.horizon)
+                            for n_, j in m.joints.items()}), tight)
+    keys = ("violations", "first_violation_ns", "test_cases", "checks")
+    for mf, conformant in ((model, True), (tight, False)):
+        for joints in ("all", "arm_2_joint"):
+            c = run_json(["check", bag_a, bag_b, "--model", mf, "--joints", joints], capsys)
+            r = run_json(["replay", bag_a, bag_b, "--model", mf, "--joints", joints], capsys)
+            assert c["conformant"] is conformant
+            for name, jc in c["joints"].items():
+                assert {k: r["joints"][name][k] for k in keys} == {k: jc[k] for k in keys}, (mf.name, name)

@@ -16,6 +16,7 @@ from reachset_ros import conformance as cf
 from reachset_ros.conformance import model as mdl
 from reachset_ros import synthesis as sy
 from reachset_ros.bags.references import Reference
+from reachset_ros.synthesis.reference_error import _reference_error_system
 from reachset_ros.sim import recordings as sr
 from reachset_ros.systems.closedloop import analyze, close_loop, simulate
 from reachset_ros.errors import InfeasibleError, ReachsetError
@@ -185,7 +186,7 @@ def test_infeasible_input_limit_names_the_binding_constraint(problems):
     space = sy.SearchSpace.from_config(sy.load_config(), "hg")
     pb = problems[0]
     tight = sy.JointProblem.prepare(pb.name, pb.plant, pb.estimator, pb.y, pb.u, pb.segments, pb.horizon,
-                                    u_max=2.5, u_ff=2.0, thm=pb.thm)
+                                    u_max=2.5, u_ff=2.0, thm=pb.thm, references=pb.references)
     with pytest.raises(InfeasibleError, match=r"no gains keep R_u inside U_p: smallest achievable R_u radius"):
         sy.combined(tight, space, SEARCH)
     with pytest.raises(ReachsetError, match="U_ff"):
@@ -229,7 +230,7 @@ def test_reidentify_keeps_the_controller(hg_results, problems):
 
 def test_iterative_procedure_with_a_simulated_robot():
     """Sec. III-D on the linear plant: synthesise, record with the new gains, synthesise again,
-    re-identify (records without references)."""
+    re-identify (records without references: a reference class bounds the reference error)."""
     calls = []
 
     def record(gains):
@@ -239,7 +240,8 @@ def test_iterative_procedure_with_a_simulated_robot():
 
     series = sr.recordings_series(sr.simulate_recordings(["j"], 2500, seed=10))[0]
     space = sy.SearchSpace.from_config(sy.load_config(), "hg")
-    hist = sy.iterate(record, series, space, iterations=2, search=SEARCH)
+    hist = sy.iterate(record, series, space, iterations=2, search=SEARCH,
+                      reference_class=sy.ReferenceClass(2.0, 0.05))
     assert [h["step"] for h in hist] == ["synthesis 1", "synthesis 2", "re-identification"]
     assert len(calls) == 2 and calls[0]["j"]["omega"] == hist[0]["results"]["j"].params["omega"]
     final = hist[-1]["results"]["j"]
@@ -324,3 +326,131 @@ def test_cli_infeasible_u_max_exits_2_with_one_line_and_no_file(bag, small_confi
 def test_cli_bad_input(bag, argv, msg, capsys):
     code, so, se = run_cli(["synthesize", bag, *argv], capsys)
     assert code == 2 and msg in se and len(se.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------------------ reference error without /reference (issue 14.4)
+def _integrate(qdd, av, ap, q0=0.0, qd0=0.0):
+    """Samples q_d, qd_d of a reference whose tick means of qdd_d(t) are ``av`` (velocity) and
+    ``ap`` (position weights 2 (dt - t) / dt^2): exact for piecewise-constant qdd_d(t)."""
+    dt = PLANT.dt
+    q, qd = np.full(len(qdd), float(q0)), np.full(len(qdd), float(qd0))
+    for k in range(len(qdd) - 1):
+        qd[k + 1] = qd[k] + dt * av[k]
+        q[k + 1] = q[k] + dt * qd[k] + 0.5 * dt * dt * ap[k]
+    return q, qd
+
+
+def _piecewise(rng, T, a, s):
+    """A random reference of the class: piecewise-constant qdd_d(t), at most one switch inside
+    each tick (at a random instant, often to the extreme), jumps <= s, |qdd_d| <= a."""
+    qdd, av, ap = np.zeros(T), np.zeros(T), np.zeros(T)
+    cur = rng.uniform(-a, a)
+    for k in range(T):
+        qdd[k] = av[k] = ap[k] = cur
+        if rng.random() < 0.5:
+            f = rng.random()                       # fraction of the tick before the switch
+            lo, hi = max(-a, cur - s), min(a, cur + s)
+            new = rng.choice([lo, hi, rng.uniform(lo, hi)])
+            av[k] = f * cur + (1 - f) * new
+            ap[k] = (1 - (1 - f) ** 2) * cur + (1 - f) ** 2 * new
+            cur = new
+    return qdd, av, ap
+
+
+def _loop_errors(obs, ctrl, qdd, av, ap, rng):
+    q, qd = _integrate(qdd, av, ap, rng.uniform(-2, 2), rng.uniform(-1, 1))
+    out = sy.simulate_closed_loop(PLANT, obs, ctrl, q, qd, qdd)
+    return np.column_stack([out["x_hat"][:, :2] - np.column_stack([q, qd]), out["u"][:, 0] - qdd])
+
+
+@pytest.mark.parametrize("gains", [sr.DEFAULT_GAINS,
+                                   {"observer": "eso", "controller": "compensated", "omega": 20, "zeta": 1,
+                                    "l1": 57.1, "l2": 103.3, "l3": 18.1, "eps": 0.01}], ids=["hg", "eso"])
+def test_reference_class_bound_is_sound_and_not_loose(gains):
+    """Y_e,ref and U_e,ff of a reference class contain the reference error of the simulated closed
+    loop for random references of the class (switches inside ticks, random start position and
+    velocity) and for worst-case sign patterns, and are within 3x of the worst one found."""
+    obs, ctrl = sy.components_from_gains(gains)
+    Ae, Be, Ce, De = _reference_error_system(PLANT, obs, ctrl)
+    H = np.concatenate([De[None], markov_parameters(Ae, Ce, Be, 699)])     # (lag, output, channel)
+    rng = np.random.default_rng(7)
+    for a, s in ((2.0, 4.0), (2.0, 0.5), (2.0, 0.02)):
+        b = sy.class_reference_error(PLANT, obs, ctrl, sy.ReferenceClass(a, s))
+        bound = np.concatenate([b.e_hi, [b.u_hi]])
+        assert np.allclose(-bound, np.concatenate([b.e_lo, [b.u_lo]])) and np.all(bound > 0)
+        worst = np.zeros(3)
+        for _ in range(4):
+            e = _loop_errors(obs, ctrl, *_piecewise(rng, 1000, a, s), rng)
+            assert np.all(np.abs(e) <= bound), (a, s)
+            worst = np.maximum(worst, np.abs(e).max(axis=0))
+        for r in range(3):                         # bang-bang aligned with the impulse response
+            if s >= 2 * a:                         # samples -sigma a, tick means +sigma a
+                sig = np.sign(2 * H[:, r, 1] + 2 * H[:, r, 2] - H[:, r, 0])[::-1]
+                qdd, av = -sig * a, sig * a
+                e = _loop_errors(obs, ctrl, qdd, av, av, rng)
+            else:                                  # zero-order hold slewing at step_max
+                sig, qdd, cur = np.sign(H[:, r, 0])[::-1], np.zeros(len(H)), 0.0
+                for k in range(len(H)):
+                    cur = float(np.clip(sig[k] * a, cur - s, cur + s))
+                    qdd[k] = cur
+                e = _loop_errors(obs, ctrl, qdd, qdd, qdd, rng)
+            assert np.all(np.abs(e) <= bound), (a, s, r)
+            worst = np.maximum(worst, np.abs(e).max(axis=0))
+        assert np.all(bound <= 3.0 * worst), (a, s, bound, worst)
+
+
+def test_problem_needs_references_or_a_reference_class_and_checks_the_class(problems):
+    pb = problems[0]
+    args = (pb.name, pb.plant, pb.estimator, pb.y, pb.u, pb.segments, pb.horizon)
+    with pytest.raises(ReachsetError, match="no references and no reference class"):
+        sy.JointProblem.prepare(*args, thm=pb.thm)
+    with pytest.raises(ReachsetError, match=r"not in the reference class qdd_max=2,step_max=0.0001: the step"):
+        sy.JointProblem.prepare(*args, thm=pb.thm, references=pb.references,
+                                reference_class=sy.ReferenceClass(2.0, 1e-4))
+    with pytest.raises(ReachsetError, match="outside U_ff"):
+        sy.JointProblem.prepare(*args, thm=pb.thm, reference_class=sy.ReferenceClass(2.5))
+    ok = sy.JointProblem.prepare(*args, thm=pb.thm, references=pb.references,
+                                 reference_class=sy.ReferenceClass(2.0, 0.05))
+    obs, ctrl = sy.components_from_gains(sr.DEFAULT_GAINS)
+    rec, cls = sy.reference_error(PLANT, obs, ctrl, pb.references), ok.reference_sets(obs, ctrl)
+    assert np.all(cls.e_lo <= rec.e_lo) and np.all(rec.e_hi <= cls.e_hi)    # the class covers the recording
+    assert cls.u_lo <= rec.u_lo and rec.u_hi <= cls.u_hi
+
+
+@pytest.fixture(scope="module")
+def bag_without_reference(recs, tmp_path_factory):
+    path = tmp_path_factory.mktemp("synth_noref") / "sim"
+    sr.write_recordings(path, {JOINTS[0]: recs[JOINTS[0]]}, reference=False, estimate=False)
+    return path
+
+
+def test_cli_synthesize_without_reference_exits_2_naming_the_missing_input(bag_without_reference, small_config,
+                                                                          tmp_path, capsys):
+    """On 555f6a7 this succeeded with the reference error taken as zero."""
+    out = tmp_path / "never.yaml"
+    code, so, se = run_cli(["synthesize", bag_without_reference, "--config", small_config, "--out", out], capsys)
+    assert code == 2 and len(se.strip().splitlines()) == 1, se
+    assert str(bag_without_reference) in se and "no /reference topic" in se and "--reference-class" in se
+    assert not out.exists()
+    code, so, se = run_cli(["synthesize", bag_without_reference, "--reference-class", "step_max=1"], capsys)
+    assert code == 2 and "qdd_max is required" in se and len(se.strip().splitlines()) == 1
+
+
+def test_cli_synthesize_with_a_reference_class(bag_without_reference, small_config, tmp_path, capsys):
+    out = tmp_path / "gains.yaml"
+    code, so, se = run_cli(["synthesize", bag_without_reference, "--config", small_config, "--json", "--out", out,
+                            "--reference-class", "qdd_max=2,step_max=0.05"], capsys)
+    assert code == 0, se
+    d = json.loads(so)
+    assert d["reference_class"] == {"qdd_max": 2.0, "step_max": 0.05}
+    ref = d["joints"][JOINTS[0]]["reference_error"]
+    assert ref["source"].startswith("reference class qdd_max=2,step_max=0.05") and ref["ticks"] == 0
+    assert ref["reference_class"] == {"qdd_max": 2.0, "step_max": 0.05} and ref["u_e_ff"][1] > 0
+    assert ref["y_e_ref"][1][1] > 0 and ref["norm"] > 0
+    m = mdl.load(out)
+    assert m.joints[JOINTS[0]].extra["reference_error"]["reference_class"] == {"qdd_max": 2.0, "step_max": 0.05}
+    # reidentify takes the class recorded in the model
+    code, so, se = run_cli(["synthesize", bag_without_reference, "--mode", "reidentify", "--model", out, "--json"],
+                           capsys)
+    assert code == 0, se
+    assert json.loads(so)["joints"][JOINTS[0]]["reference_error"]["source"].startswith("reference class")

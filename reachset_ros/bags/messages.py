@@ -34,6 +34,8 @@ ESTIMATE_TYPE = "reachset_msgs/msg/JointEstimate"
 STATUS_TOPIC = "/conformance/status"
 SAFE_STOP_TOPIC = "/safe_stop"
 FAULT_ONSET_TOPIC = "/sim/fault_onset"
+#: ``diagnostic_msgs/msg/DiagnosticArray`` of the nodes (the controller's reports the transient windows).
+DIAGNOSTICS_TOPIC = "/diagnostics"
 STATUS_TYPE = "reachset_msgs/msg/ConformanceStatus"
 SAFE_STOP_TYPE = "reachset_msgs/msg/SafeStop"
 FAULT_ONSET_TYPE = "std_msgs/msg/Header"

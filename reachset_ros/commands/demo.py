@@ -157,7 +157,9 @@ def human_summary(s):
     for name, t in (s.get("tracking") or {}).items():
         line = (f"{name}: measured |e| max q {t['max_abs_error'][0]:.3g} rad, qdot {t['max_abs_error'][1]:.3g} "
                 f"rad/s; synthesis R*_e radius {t['re_radius'][0]:.3g}, {t['re_radius'][1]:.3g} "
-                f"({t['share_inside']:.1%} of {t['ticks']} ticks inside)")
+                f"({t['share_inside']:.1%} of {t['ticks']} ticks inside"
+                + (f"; {t['ticks_in_transient']} ticks of transient after a start, gain change or braking "
+                   "not judged" if t.get("ticks_in_transient") else "") + ")")
         if "run_radius" in t:
             line += (f"; this run's R*_e (its references, inflation) radius {t['run_radius'][0]:.3g}, "
                      f"{t['run_radius'][1]:.3g} ({t['share_inside_run']:.1%} inside)")

@@ -17,6 +17,14 @@ Options beyond the paper's separate approach:
   (the measured position gets accel/2 * t^2 from the onset, the middle of the longest
   validation segment), and the detection delay (ticks from onset to first violation) is
   reported.
+
+The horizon k* is refused (exit 2) below the plant's minimum
+(:func:`~reachset_ros.conformance.kernels.minimum_horizon`: the first k* at which Theorem 1
+constrains every alpha_W and alpha_V; 2 for the LWA-4P joint plant) unless
+``--allow-weak-horizon`` is given; the model file and ``--json`` then record
+``horizon_below_minimum: true``. Per joint, ``stable_horizon`` is Remark 3's threshold on
+the data (on a grid up to k*) and ``horizon_settled`` says whether the sets stopped changing
+before k* (false: a longer horizon may still change them).
 """
 import sys
 
@@ -26,6 +34,7 @@ from ..conformance import model as mdl
 from ..conformance.corollary1 import identify_corollary1
 from ..conformance.estimators import ESTIMATORS, Estimator
 from ..conformance.identify import identify_quadratic, identify_sets, stable_horizon
+from ..conformance.kernels import require_minimum_horizon
 from ..conformance.theorem1 import Theorem1, deviation_extremes_many
 from ..conformance.validation import detection_delay, validation_grid
 from ..errors import ReachsetError
@@ -41,7 +50,11 @@ DEFAULT_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 
 def add_arguments(p):
     add_bag_arguments(p)
-    p.add_argument("--horizon", type=int, default=125, help="k*, ticks (default 125, the paper's)")
+    p.add_argument("--horizon", type=int, default=125, help="k*, ticks (default 125, the paper's; at least "
+                                                             "the plant's minimum, 2 for the LWA-4P joint)")
+    p.add_argument("--allow-weak-horizon", action="store_true",
+                   help="accept a horizon below the plant's minimum (a weaker guarantee: some alpha is not "
+                        "constrained by the data); recorded in the model file")
     p.add_argument("--out", help="write the model YAML here")
     p.add_argument("--estimator", default="fd", choices=sorted(ESTIMATORS),
                    help="initial-state estimator of the test cases (stored in the model)")
@@ -143,13 +156,14 @@ def run(args):
         raise ReachsetError("--horizon must be >= 0")
     if args.dt <= 0:
         raise ReachsetError("--dt must be positive")
+    plant = lwa4p_joint_plant(dt=args.dt)
+    k_min, weak = require_minimum_horizon(plant, args.horizon, args.allow_weak_horizon)
     if not np.isfinite(args.fault_accel):
         raise ReachsetError("--fault-accel must be finite")
     if args.inflation_grid is not None and args.validate is None:
         raise ReachsetError("--inflation-grid needs --validate")
     grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
-    plant = lwa4p_joint_plant(dt=args.dt)
     est = Estimator.named(args.estimator, lwa4p_joint_plant(dt=args.dt))
     series, report = load_series(args.bags, args.joints, args.dt)
     require_horizon(series, est.history, args.horizon, args.bags)
@@ -168,10 +182,12 @@ def run(args):
                     "c_w": sets.c_w.tolist(), "c_v": sets.c_v.tolist(),
                     "test_cases": dev.test_cases, "horizon": args.horizon,
                     "checks": dev.checks, "stable_horizon": settled,
+                    "horizon_settled": None if settled is None else bool(settled < args.horizon),
                     "soundness_inflation": float(sets.soundness_bump),
                     "objective": float(sets.cost)}
     inflation = 0.0
-    result = {"joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method}
+    result = {"joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
+              "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak}
     if vseries is not None:
         inflation, val = validate(plant, est, args.horizon, thm, joints, vseries, grid, args.fault_accel)
         for name, v in val.items():
@@ -184,11 +200,16 @@ def run(args):
             prov["validation"] = {"bags": mdl.provenance(args.validate, "")["bags"],
                                   "inflation_grid": grid, "fault_accel": args.fault_accel}
         m = mdl.ConformanceModel(plant, {"kind": "lwa4p_joint", "dt": args.dt}, est, args.horizon, joints,
-                                 inflation, prov)
+                                 inflation, prov, k_min, weak)
         mdl.save(m, out)
         result["model"] = str(out)
     lines = [f"{n}: alpha_w={v['alpha_w']} alpha_v={v['alpha_v']} test_cases={v['test_cases']} "
-             f"(sets stop changing at k={v['stable_horizon']})" for n, v in js.items()]
+             + (f"(sets stop changing at k={v['stable_horizon']})" if v["horizon_settled"] else
+                f"(sets still changing at k*={args.horizon}: Remark 3's threshold not reached)"
+                if v["horizon_settled"] is False else "") for n, v in js.items()]
+    if weak:
+        lines.append(f"WEAK GUARANTEE: horizon {args.horizon} is below the plant's minimum {k_min} "
+                     "(--allow-weak-horizon)")
     for n, v in js.items():
         val = v.get("validation")
         if val:

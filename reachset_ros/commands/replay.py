@@ -1,4 +1,12 @@
-"""``reachset replay``: the bag through the online monitor's tick-by-tick code path."""
+"""``reachset replay``: the bag through the online monitor's tick-by-tick code path.
+
+The test cases are cut exactly where ``reachset check`` cuts them: at the boundaries of the
+series' segments (:func:`reachset_ros.bags.series.read_joint_series`, the one source of
+truth). The monitor itself ends a segment at a stamp gap or an invalid sample; where two
+segments touch without either (the next bag stamped one tick after the previous one, see
+:func:`segment_breaks`), replay resets the monitor, so that a test case never continues
+into another recording.
+"""
 import time
 
 import numpy as np
@@ -20,18 +28,30 @@ def add_arguments(p):
     p.add_argument("--model", required=True, help="model YAML (identify/synthesize output)")
 
 
+def segment_breaks(segments):
+    """Ticks at which one segment ends and the next begins at once (no invalid tick between).
+
+    Each bag starts a new segment, so these are the bag boundaries (and stamp gaps, where
+    the monitor resets anyway): the ticks before which the monitor must forget its test
+    cases to agree with ``check``.
+    """
+    return {b for (_, b), (c, _) in zip(segments, segments[1:]) if b == c}
+
+
 def replay_joints(model, series, thm=None):
     """Feed the series tick by tick to the online monitor; returns per-joint results, durations.
 
-    Joints with one-dimensional outputs and identical stamps run together in one
-    :class:`~reachset_ros.conformance.monitor.Monitor` (the monitor node's code path); otherwise each
-    joint runs on its own (a ``Monitor`` of one joint, or a ``JointMonitor`` for
-    multi-dimensional outputs).
+    Joints with one-dimensional outputs, identical stamps and identical segment breaks run
+    together in one :class:`~reachset_ros.conformance.monitor.Monitor` (the monitor node's code
+    path); otherwise each joint runs on its own (a ``Monitor`` of one joint, or a
+    ``JointMonitor`` for multi-dimensional outputs).
     """
     names = list(series)
     mms = [MonitorModel.from_model(model, n, thm) for n in names]
     first_stamps = series[names[0]].stamps
-    together = all(m.scalar for m in mms) and all(np.array_equal(series[n].stamps, first_stamps) for n in names)
+    breaks = {n: segment_breaks(series[n].segments) for n in names}
+    together = (all(m.scalar for m in mms) and all(np.array_equal(series[n].stamps, first_stamps) for n in names)
+                and all(breaks[n] == breaks[names[0]] for n in names))
     groups = [names] if together else [[n] for n in names]
     out, durs = {}, []
     for group in groups:
@@ -44,8 +64,11 @@ def replay_joints(model, series, thm=None):
         first = [None] * len(group)
         checks = np.zeros(len(group), dtype=np.int64)
         d = np.empty(len(s0.stamps))
+        cut = breaks[group[0]]
         for i in range(len(s0.stamps)):
             t0 = time.perf_counter()
+            if i in cut:
+                mon.reset()
             r = mon.tick(int(s0.stamps[i]), Y[i], U[i])
             d[i] = time.perf_counter() - t0
             if isinstance(r, dict):

@@ -26,7 +26,7 @@ from ..conformance.estimators import ESTIMATORS
 from ..errors import ReachsetError
 from ..synthesis.config import PARAMS
 from ..synthesis.pipeline import synthesize_bags
-from ..synthesis.reference_error import ReferenceMethod
+from ..synthesis.reference_error import ReferenceClass, ReferenceMethod
 from . import emit
 from ._bagargs import add_bag_arguments, check_out_path, parse_joints
 
@@ -56,7 +56,11 @@ def add_arguments(p):
                         "(default: config u_max per joint, the paper's Table I)")
     p.add_argument("--u-ff", type=float, default=None,
                    help="U_ff = [-F, F], bound of the feedforward qdd_d (default 2, paper Sec. IV)")
-    p.add_argument("--horizon", type=int, default=None, help="k*, ticks (default 125; reidentify: the model's)")
+    p.add_argument("--horizon", type=int, default=None, help="k*, ticks (default 125; reidentify: the model's; "
+                                                              "at least the plant's minimum, 2 for the LWA-4P joint)")
+    p.add_argument("--allow-weak-horizon", action="store_true",
+                   help="accept a horizon below the plant's minimum (a weaker guarantee: some alpha is not "
+                        "constrained by the data); recorded in the model file")
     p.add_argument("--estimator", default=None, choices=sorted(ESTIMATORS),
                    help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
@@ -66,6 +70,10 @@ def add_arguments(p):
                    help="Appendix B: 3 (default) sets over the bags' references inside the optimisation; "
                         "2 optimise without, check R_u + u_e,ff for the recorded references; "
                         "1 the controller tracks y_cl,ref (no u_e,ff)")
+    p.add_argument("--reference-class", metavar="qdd_max=F[,step_max=F]", default=None,
+                   help="bound the reference error (Appendix B) over every reference with |qdd_d| <= qdd_max "
+                        "varying by <= step_max (default 2 qdd_max) within a tick, instead of the bags' "
+                        "/reference (which must then lie in it); required when the bags have no /reference")
     p.add_argument("--eso-input", choices=["previous", "current"], default="previous",
                    help="plant input fed to the ESO: u_p[k-1] (default) or u_p[k]")
     p.add_argument("--seed", type=int, default=None, help="seed of the global search (default: config, 0)")
@@ -160,7 +168,10 @@ def run(args):
     bs = synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
                          _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
                          args.alpha_lower, ReferenceMethod(args.reference_method), args.eso_input, args.seed,
-                         tuple(args.lqg_r or ()), args.config, args.model, args.dt)
+                         tuple(args.lqg_r or ()), args.config, args.model, args.dt,
+                         allow_weak_horizon=args.allow_weak_horizon,
+                         reference_class=(None if args.reference_class is None
+                                          else ReferenceClass.parse(args.reference_class)))
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []
@@ -175,4 +186,6 @@ def run(args):
         mdl.save(bs.model("reachset " + " ".join(sys.argv[1:])), out)
         result["model"] = str(out)
     result["seconds"] = round(time.perf_counter() - t0, 3)
-    emit(args, result, _human(bs.results) + (f"\nmodel written to {out}" if out else ""))
+    weak = (f"\nWEAK GUARANTEE: horizon {bs.horizon} is below the plant's minimum {bs.minimum_horizon} "
+            "(--allow-weak-horizon)") if bs.horizon_below_minimum else ""
+    emit(args, result, _human(bs.results) + weak + (f"\nmodel written to {out}" if out else ""))

@@ -49,8 +49,8 @@ from .corollary1 import (StateDeviations, corollary1_constraints, identify_corol
 from .estimators import ESTIMATORS, Estimator
 from .identify import (IdentifiedSets, frobenius_weights, identification_constraints, identify_quadratic,
                        identify_sets, make_sound, set_norm_cost, stable_horizon, z_bounds, z_to_xi)
-from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, predict_output, require_horizon,
-                      sweep, test_case_starts)
+from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, minimum_horizon, predict_output,
+                      require_horizon, require_minimum_horizon, sweep, test_case_starts)
 from .model import ConformanceModel, JointSets
 from .monitor import FaultEvent, JointMonitor, Monitor, MonitorModel, TickEvent, TickResult
 from .theorem1 import (CheckResult, Deviations, Theorem1, check, combine, deviation_extremes,
@@ -61,7 +61,7 @@ from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tic
 __all__ = [
     # kernels
     "matvec", "matvec_into", "matvec_plan", "predict_output", "advance", "as_2d",
-    "test_case_starts", "require_horizon", "sweep",
+    "test_case_starts", "require_horizon", "minimum_horizon", "require_minimum_horizon", "sweep",
     # estimators
     "Estimator", "ESTIMATORS",
     # theorem1

@@ -166,6 +166,54 @@ def require_horizon(series, history, horizon, bags):
                                 f"the longest run of consecutive valid ticks has {longest}, a test case needs {need}")
 
 
+def minimum_horizon(plant):
+    """The smallest k* at which Theorem 1's rows constrain every scaling factor alpha.
+
+    Theorem 1 (paper Sec. III-B) bounds y_a^(m)[k] by R_a[k] = (+)_{i<k} C A^i W (+) V
+    (eq. 13): the row D_k of step k has the coefficient sum_{i<k} |N_k C A^i g_j| for
+    alpha_W,j (column g_j of G'_W) and |N_k G'_V,j| for alpha_V,j. With k* below the first
+    k at which a column's coefficient is non-zero, no inequality mentions that alpha, so the
+    identification leaves it at its lower bound (zero): a vacuous W (``--horizon 0`` or 1
+    on the per-joint LWA-4P plant, whose input and output each carry one sample of delay,
+    gives alpha_W = 0 and a reachable error set R_e that ignores the process disturbance).
+
+    Returns max_j k_j over the columns, with k_j = 0 for a V column with a non-zero
+    generator and k_j = 1 + (first i with C A^i g_j != 0) for a W column. Columns that never
+    reach the output (C A^i g_j = 0 for all i < n, hence for all i) cannot be bounded from
+    output data by any horizon and are left out. 2 for :func:`~reachset_ros.systems.plant.lwa4p_joint_plant`.
+    """
+    A, C = np.asarray(plant.A, float), np.asarray(plant.C, float)
+    need = [0 for j in range(plant.Gv.shape[1]) if np.any(np.asarray(plant.Gv)[:, j] != 0.0)]
+    n = A.shape[0]
+    for j in range(plant.Gw.shape[1]):
+        v = np.asarray(plant.Gw, float)[:, j]
+        for i in range(n):
+            if np.any(C @ v != 0.0):
+                need.append(i + 1)
+                break
+            v = A @ v
+    return max(need, default=0)
+
+
+def require_minimum_horizon(plant, horizon, allow_weak=False):
+    """The horizon rule of ``identify``, ``synthesize`` and the synthesis node (one place).
+
+    Refuses (:class:`ReachsetError`, exit 2) a k* below :func:`minimum_horizon` unless
+    ``allow_weak`` (the ``--allow-weak-horizon`` option), in which case the model file
+    records ``horizon_below_minimum: true``. Returns ``(minimum, below)``.
+    """
+    horizon = int(horizon)
+    if horizon < 0:
+        raise ReachsetError(f"horizon must be >= 0, got {horizon}")
+    k_min = minimum_horizon(plant)
+    below = horizon < k_min
+    if below and not allow_weak:
+        raise ReachsetError(f"horizon {horizon} is below the minimum horizon {k_min} of this plant (the first "
+                            f"k* at which Theorem 1 constrains every alpha_W and alpha_V); use --horizon {k_min} "
+                            "or more, or --allow-weak-horizon to accept a weaker guarantee")
+    return k_min, below
+
+
 def sweep(plant, estimator, y, u, segments, horizon, visit, block=16384):
     """Run all sequential test cases for k = 0..horizon and call ``visit`` per step.
 

@@ -3,8 +3,11 @@
 Holds everything needed to reproduce a verdict: the plant (the paper's per-joint
 LWA-4P model or explicit matrices), per joint the identified sets W = (c_W, G'_W diag
 alpha_W) and V = (c_V, G'_V diag alpha_V), the horizon k*, the initial-state estimator,
-an optional calibrated inflation, optional gains, and provenance (input bags and their
-SHA-256). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
+an optional calibrated inflation, optional gains, provenance (input bags and their
+SHA-256), and the horizon rule's outcome (``minimum_horizon`` of the plant, and
+``horizon_below_minimum: true`` when k* was accepted below it with ``--allow-weak-horizon``;
+see :func:`~reachset_ros.conformance.kernels.require_minimum_horizon`; both optional, so
+files written before them load unchanged). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
 ``replay`` and the monitor node read it.
 """
 from __future__ import annotations
@@ -61,6 +64,8 @@ class ConformanceModel:
     joints: dict
     inflation: float = 0.0
     provenance: dict = field(default_factory=dict)
+    minimum_horizon: int = None          # the plant's minimum k* (None: not recorded, older file)
+    horizon_below_minimum: bool = False  # k* accepted below the minimum (a weaker guarantee)
 
     def with_joints(self, joints):
         return replace(self, joints=dict(joints))
@@ -141,6 +146,8 @@ def to_dict(model: ConformanceModel) -> dict:
                           **({"extra": j.extra} if j.extra else {})}
                    for name, j in model.joints.items()},
         "provenance": model.provenance,
+        **({"minimum_horizon": int(model.minimum_horizon)} if model.minimum_horizon is not None else {}),
+        **({"horizon_below_minimum": True} if model.horizon_below_minimum else {}),
     }
 
 
@@ -179,8 +186,13 @@ def from_dict(d, source="model") -> ConformanceModel:
         joints[str(name)] = JointSets(aw, av, cw, cv, _int(j.get("test_cases", 0), f"joint {name} test_cases"),
                                       _int(j.get("horizon", horizon), f"joint {name} horizon"), gains,
                                       j.get("extra", {}) or {})
+    k_min = d.get("minimum_horizon")
+    k_min = None if k_min is None else _int(k_min, "minimum_horizon")
+    below = d.get("horizon_below_minimum", False)
+    if not isinstance(below, bool):
+        raise ReachsetError(f"{source}: horizon_below_minimum must be true or false, got {below!r}")
     return ConformanceModel(plant, dict(d["plant"]), est, horizon, joints, inflation,
-                            d.get("provenance", {}) or {})
+                            d.get("provenance", {}) or {}, k_min, below)
 
 
 def load(path) -> ConformanceModel:

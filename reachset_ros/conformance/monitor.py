@@ -37,11 +37,15 @@ One tick, three implementations, all here but the C source:
 
 What :class:`MonitorCore <reachset_ros.nodes.monitor_node.MonitorCore>` (the monitor node
 without ROS) makes of the ticks it feeds to :class:`Monitor` are events:
-:class:`TickEvent` (a tick was checked) and :class:`FaultEvent` (a fault latches the safe
-stop).
+:class:`TickEvent` (a tick was processed) and :class:`FaultEvent` (a fault latches the safe
+stop). :class:`CoverageWatch` turns a stream on which the test cases Theorem 1 needs cannot
+be formed (period not the model's dt, or losses that keep every test case short of k*)
+into a ``coverage`` fault: a tick at which nothing was checked is never conformant, and
+not checking is not allowed to go on.
 """
 from __future__ import annotations
 
+import collections
 import ctypes
 import math
 from dataclasses import dataclass
@@ -108,16 +112,31 @@ class TickResult:
 
 @dataclass(frozen=True)
 class TickEvent:
-    """A checked tick, as the monitor node's core reports it (no safe stop by itself).
+    """A processed tick, as the monitor node's core reports it (no safe stop by itself).
 
     ``result`` is :meth:`Monitor.tick`'s dict of per-joint verdicts (``status``, ``margin``,
     ``checked``, ``step``, ``start_tick``, ``deviation``, ``bound``); a ``violation``
-    status in it is what latches the safe stop.
+    status in it is what latches the safe stop. ``longest`` is the largest step k checked
+    at this tick by every joint (the smallest over joints of each joint's largest k; -1:
+    some joint checked nothing).
     """
 
     stamp: int                  # the tick's header stamp, ns
     result: dict
     duration: float             # wall time of Monitor.tick, s
+    longest: int = -1
+
+    @property
+    def conformant(self):
+        """True only if every joint checked at least one test case and none left its set.
+
+        A tick at which nothing was checked (the first ``history`` ticks after a start, a
+        reset or a gap) is not conformant: it is not a violation either (``margin`` is
+        +inf there, a violation is a margin < 0).
+        """
+        res = self.result
+        return bool(len(res["checked"]) and min(res["checked"]) > 0
+                    and all(s in ("ok", "gap_reset") for s in res["status"]))
 
 
 @dataclass(frozen=True)
@@ -125,7 +144,7 @@ class FaultEvent:
     """A fault of the input that latches the safe stop (``SafeStop.kind``, ``reason``, ``joint``)."""
 
     stamp: int                  # ns
-    kind: str                   # invalid_sample | name_mismatch | stamp_backwards
+    kind: str                   # invalid_sample | name_mismatch | stamp_backwards | coverage
     reason: str                 # one line, for the log and SafeStop.reason
     joint: str = ""             # the joint concerned ("" if none or not known)
 
@@ -177,7 +196,7 @@ class JointMonitor:
             self.X = np.hstack([x0, self.X])
             self.ages = np.concatenate([[0], self.ages])
             self.starts = np.concatenate([[self.tick_index], self.starts])
-        res = TickResult(True, status, 0, math.inf)
+        res = TickResult(False, status, 0, math.inf)    # nothing checked: never conformant
         if self.X.shape[1]:
             U = np.repeat(u[:, None], self.X.shape[1], axis=1)
             ya = y[:, None] - predict_output(p, self.X, U)
@@ -314,6 +333,14 @@ class Monitor:
     @property
     def last_stamp(self):
         return int(self._clock[1]) if self._clock[2] else None
+
+    def reached_horizon(self):
+        """Per joint: whether the last tick checked a test case at step k* (the slot started k* ticks ago)."""
+        return self.active[:, (int(self._clock[0]) + 1) % self.S]
+
+    def longest_step(self):
+        """Per joint: the largest step k checked at the last tick (-1: nothing checked)."""
+        return np.where(self.active, self.ages, -1).max(axis=1)
 
     def tick(self, stamp_ns, y, u):
         """Check one tick; returns a dict of per-joint arrays.
@@ -453,6 +480,121 @@ class Monitor:
                 "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
                 "deviation": np.where(has, np.where(use_p, Ny[r, col], -Ny[r, col]), 0.0),
                 "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0)}
+
+
+class CoverageWatch:
+    """Whether the monitor forms the test cases its model needs (Theorem 1 checks steps 0..k*).
+
+    Fed once per processed tick with its stamp and ``longest``, the largest step k checked
+    at it by every joint (-1: nothing; k*: the horizon), :meth:`update` returns a
+    ``coverage`` :class:`FaultEvent` when, in stamp time,
+
+    * nothing was checked for longer than the warm-up (``history`` ticks) plus the
+      missing-data limit ``max_missing_ticks``·dt since the later of the start and the last
+      checked tick (e.g. a 125 Hz stream for a 4 ms model: every step is a gap);
+    * no test case reached k* for longer than the warm-up ``history + k*`` ticks plus the
+      same limit since the later of the start and the last tick that checked step k*
+      (losses that keep every test case short of the horizon);
+    * the mean of the last ``max(max_missing_ticks, PERIOD_MIN_STEPS)`` consecutive stamp
+      steps (none a gap) is off dt by more than ``PERIOD_TOLERANCE`` (e.g. 300 Hz for a
+      4 ms model: no gap, but every test case on the wrong time grid).
+
+    A stamp step longer than the missing-data limit starts afresh (silence is the
+    watchdog's business, on wall time), so a single gap never causes a coverage fault.
+    After a fault the watch starts afresh too. ``ticks`` and ``full_ticks`` count since
+    the last :meth:`reset`.
+    """
+
+    PERIOD_TOLERANCE = 0.05
+    PERIOD_MIN_STEPS = 10
+    RECENT = 64                 # stamp steps kept for the reason (measured period, gaps)
+
+    def __init__(self, dt_ns, history, horizon, max_missing_ticks=25):
+        self.dt_ns, self.history, self.horizon = int(dt_ns), int(history), int(horizon)
+        self.max_missing_ticks = int(max_missing_ticks)
+        self.reset()
+
+    def reset(self):
+        """Start afresh and count anew (a start, the reset service, a new model)."""
+        self.ticks = self.full_ticks = 0
+        self._restart()
+
+    def _restart(self):
+        self.last = None
+        self.ref_check = self.ref_full = None
+        self.run = collections.deque(maxlen=max(self.max_missing_ticks, self.PERIOD_MIN_STEPS) + 1)
+        self.recent = collections.deque(maxlen=self.RECENT)
+        self.longest_seen = -1      # largest step checked since the last check of step k*
+        self.last_longest = -1
+
+    def set_max_missing_ticks(self, n):
+        self.max_missing_ticks = int(n)
+        self._restart()
+
+    @property
+    def share(self):
+        """Share of the ticks seen at which every joint checked step k*."""
+        return self.full_ticks / self.ticks if self.ticks else 0.0
+
+    def update(self, stamp, longest):
+        """Account for the tick at ``stamp`` (ns); returns a FaultEvent or None."""
+        dt, mm = self.dt_ns, self.max_missing_ticks
+        if self.last is None or stamp - self.last > mm * dt:
+            self.ref_check = self.ref_full = stamp
+            self.run.clear()
+            self.recent.clear()
+            self.longest_seen = -1
+        else:
+            step = stamp - self.last
+            self.recent.append(step)
+            if not (dt <= 2 * step <= 3 * dt):        # a gap (the monitor's rule): a new run
+                self.run.clear()
+        self.run.append(stamp)
+        self.last = stamp
+        self.ticks += 1
+        self.last_longest = longest = int(longest)
+        if longest >= 0:
+            self.ref_check = stamp
+        if longest >= self.horizon:
+            self.ref_full = stamp
+            self.full_ticks += 1
+            self.longest_seen = -1
+        else:
+            self.longest_seen = max(self.longest_seen, longest)
+        H, K = self.history, self.horizon
+        why = None
+        if stamp - self.ref_check > (H + mm) * dt:
+            why = (f"nothing checked for {_ms(stamp - self.ref_check)} (allowed: {H}-tick warm-up + "
+                   f"{_ms(mm * dt)} missing-data limit): {self._stream()}")
+        elif stamp - self.ref_full > (H + K + mm) * dt:
+            why = (f"no test case reached the horizon k*={K} for {_ms(stamp - self.ref_full)} (allowed: "
+                   f"{H + K}-tick warm-up + {_ms(mm * dt)} missing-data limit), longest step checked "
+                   f"{self.longest_seen} of {K}: {self._stream()}")
+        elif len(self.run) == self.run.maxlen:
+            w = len(self.run) - 1
+            mean = (self.run[-1] - self.run[0]) / w
+            if abs(mean - dt) > self.PERIOD_TOLERANCE * dt:
+                why = (f"measured stream period {_ms(mean)} (mean of the last {w} consecutive stamp steps) "
+                       f"does not match the model's dt {_ms(dt)} (tolerance {self.PERIOD_TOLERANCE:.0%}): "
+                       "the test cases would be formed on the wrong time grid")
+        if why is None:
+            return None
+        self._restart()
+        return FaultEvent(stamp, "coverage", "coverage: " + why)
+
+    def _stream(self):
+        """The measured stream: median stamp step and how many of the recent steps were gaps."""
+        steps = np.array(self.recent, dtype=np.float64)
+        if not len(steps):
+            return f"no stamp step measured yet, model dt {_ms(self.dt_ns)}"
+        gaps = int(np.sum((2 * steps < self.dt_ns) | (2 * steps > 3 * self.dt_ns)))
+        return (f"measured stream period {_ms(float(np.median(steps)))} (median of the last {len(steps)} "
+                f"stamp steps) for a model dt of {_ms(self.dt_ns)}; {gaps} of those steps are gaps "
+                "(outside [0.5, 1.5] dt), which end every test case")
+
+
+def _ms(ns):
+    return f"{ns / 1e6:.4g} ms"
 
 
 # ------------------------------------------------------------------ the compiled kernel

@@ -1,11 +1,24 @@
 """controller_node: the feedback-linearizing controller (paper eqs. 5-7).
 
 u_p = q̈_d + ω²(q_d − q̂) + 2ζω(q̇_d − q̂̇) [− d̂]  from ``/observer/estimate`` and
-``/reference`` (paired by stamp), then τ = M(q̂) u_p + ψ(q̂, q̂̇) with the nominal Pinocchio
+``/reference`` (paired by stamp), computed by the certified law itself
+(:class:`~reachset_ros.systems.closedloop.FeedbackLaw` of the joint's
+:class:`~reachset_ros.systems.gains.Gains`, which also solves the algebraic loop of an ESO
+fed u_p[k]), then τ = M(q̂) u_p + ψ(q̂, q̂̇) with the nominal Pinocchio
 model; publishes ``/effort_commands`` and ``/plant_input`` stamped with the measurement's
 stamp. Gains change only through the parameter services, atomically between ticks; a
 change is refused with its reason when the closed loop would be unstable or its reachable
-input would leave U_p under the current model (``model_file``). On an active
+input would leave U_p under the current model (``model_file``).
+
+Assumptions of the guarantee it checks and reports on ``/diagnostics``: a reference with
+|q̈_d| > ``u_ff_bound`` (outside the class R_u is certified for) is flagged, not altered:
+counted ``reference_out_of_class`` with the last stamp and joint, the status turns WARN
+(published at once) and a warning is logged the first time; the tick is still controlled by
+the same law. R_e holds from zero initial error: after the start, a gain change or the end
+of braking, the transient (``settling_ticks`` of each joint's closed loop,
+:func:`~reachset_ros.systems.closedloop.settling_ticks`) is reported with the stamps it
+spans (``transient_start_ns``, ``transient_end_ns``), during which the tracking error is not
+claimed to lie in R*_e. On an active
 ``/safe_stop`` it switches to a braking law that brings the joints to rest within U_p and
 holds them; only a cleared stop gives control back. With ``wait_for_monitor`` it also
 holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
@@ -26,6 +39,7 @@ from ..conformance import model as mdl
 from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems import closedloop
+from ..systems.closedloop import FeedbackLaw
 from ..systems.gains import check_gains
 from ..systems.plant import lwa4p_joint_plant
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
@@ -71,7 +85,11 @@ class ControllerNode(Node):
         self.declare_parameter("model_file", "", desc("conformance model used to check gain changes"))
         self.declare_parameter("u_max", [26.0, 26.0, 26.0, 26.0, 100.0, 100.0],
                                desc("U_p half-width per joint, rad/s^2"))
-        self.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2", 0.0, 1000.0))
+        self.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified "
+                                                       "for; references beyond it are flagged reference_out_of_class",
+                                                       0.0, 1000.0))
+        self.declare_parameter("dt", 0.004, desc("tick period, s (the observer's; a model must have the same)",
+                                                 1e-4, 1.0, read_only=True))
         self.declare_parameter("reference_timeout", 0.02,
                                desc("wait up to this long (s, wall) for the reference of an estimate's stamp; "
                                     "then the newest earlier reference is used (counted late_reference)",
@@ -82,6 +100,7 @@ class ControllerNode(Node):
                                     "never moves the arm before it knows whether a safe stop is latched"))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
+        self.dt = float(self.get_parameter("dt").value)
         params = self.get_parameter("robot_params").value or None
         self.robot = robot.load_model(params=params)
         self.data = robot.create_data(self.robot)
@@ -96,7 +115,7 @@ class ControllerNode(Node):
         values = dict(current_values(self), u_max=self.get_parameter("u_max").value,
                       u_ff_bound=self.get_parameter("u_ff_bound").value)
         try:
-            self.gains, self.u_max = self.validate(values, self.model)
+            self.apply(self.validate(values, self.model), "start-up")
         except ReachsetError as e:
             raise ReachsetError(f"start-up parameters refused: {e}") from None
         self.refs = {}
@@ -104,7 +123,10 @@ class ControllerNode(Node):
         self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.q_hold = None
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
-                         "braking_ticks": 0}
+                         "braking_ticks": 0, "reference_out_of_class": 0}
+        self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
+        self.out_of_class_reported = 0   # the count at the last /diagnostics
+        self.flagged = False             # the previous tick's reference was out of class
         self.waiting = None          # (stamp, msg, wall time) of an estimate whose reference is not here yet
         self.last_ref = None         # the newest usable reference (stamp, (q_d, qd_d, qdd_d))
         self.effort_pub = self.create_publisher(Float64MultiArray, "effort_commands", TICK_QOS)
@@ -118,42 +140,102 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     def publish_diagnostics(self):
-        """About 1 Hz: braking or not, and the counts of skipped inputs."""
+        """About 1 Hz (and at once when a reference leaves the class or a transient starts):
+        braking or not, the counts of skipped and flagged inputs, and the transient window."""
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         st = DiagnosticStatus(name="reachset_ros: controller", hardware_id="")
+        n_flagged = self.counters["reference_out_of_class"]
+        new_flags = n_flagged - self.out_of_class_reported
+        self.out_of_class_reported = n_flagged
+        tr = self.transient
         if self.stop_active:
             st.level, st.message = DiagnosticStatus.ERROR, "safe stop: braking and holding"
         elif not self.stop_known:
             st.level, st.message = DiagnosticStatus.WARN, "holding: no /safe_stop state from the monitor yet"
+        elif new_flags:
+            stamp, joint, acc = self.out_of_class_last
+            st.level = DiagnosticStatus.WARN
+            st.message = (f"reference out of class at {new_flags} tick(s) (last: stamp {stamp}, {joint} |qdd_d| = "
+                          f"{abs(acc):.4g} > u_ff_bound {self.u_ff:g} rad/s^2): R_u is not certified there")
+        elif tr is not None and tr["active"]:
+            st.level = DiagnosticStatus.OK
+            st.message = (f"tracking; transient after the {tr['cause']} until stamp {tr['end_ns']}: the tracking "
+                          "error is not claimed to be inside R*_e before it")
         else:
             st.level, st.message = DiagnosticStatus.OK, "tracking"
         counts = dict(self.counters, callback_errors=getattr(self, "callback_errors", 0))
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counts.items())]
+        values = {k: str(v) for k, v in counts.items()}
+        if self.out_of_class_last is not None:
+            stamp, joint, acc = self.out_of_class_last
+            values.update(reference_out_of_class_last_ns=str(stamp), reference_out_of_class_joint=joint,
+                          reference_out_of_class_qdd_d=repr(float(acc)))
+        values["u_ff_bound"] = repr(self.u_ff)
+        for j, k in self.settling.items():
+            values[f"settling_ticks/{j}"] = str(k)
+        values["transient_ticks"] = str(max(self.settling.values(), default=0))
+        if tr is not None:
+            values.update(transient_cause=tr["cause"], transient_start_ns=str(tr["start_ns"]),
+                          transient_end_ns=str(tr["end_ns"]), in_transient=str(tr["active"]).lower())
+            for j, e in tr["end_ns_joint"].items():
+                values[f"transient_end_ns/{j}"] = str(e)
+        st.values = [KeyValue(key=k, value=v) for k, v in sorted(values.items())]
         arr.status = [st]
         self.diag_pub.publish(arr)
 
     # -- gains ---------------------------------------------------------------------------
     def validate(self, values, model):
-        """Gains and U_p of a proposed configuration, or ReachsetError with the reason: every
-        joint's closed loop must be stable, and where the model has the joint's sets its R_u
-        must stay inside U_p."""
+        """The configuration a proposed set of parameters gives, or ReachsetError with the
+        reason: every joint's closed loop must be stable, and where the model has the joint's
+        sets its R*_u (for the sets scaled by 1 + the model's inflation, plus U_ff and the
+        model's U_e,ff: :func:`~reachset_ros.systems.gains.certify`) must stay inside U_p. Returns a dict: ``gains`` (joint -> Gains),
+        ``laws`` (joint -> FeedbackLaw, the certified law of the loop), ``settling`` (joint ->
+        ticks, :func:`~reachset_ros.systems.closedloop.settling_ticks` of its closed loop),
+        ``u_max``, ``u_ff``, ``model``."""
         gains = gains_from(values, self.joints)
-        u_max = u_max_array(values.get("u_max", self.get_parameter("u_max").value), len(self.joints))
-        u_ff = float(values.get("u_ff_bound", self.get_parameter("u_ff_bound").value))
+        def value(name):
+            return values[name] if name in values else self.get_parameter(name).value
+        u_max = u_max_array(value("u_max"), len(self.joints))
+        u_ff = float(value("u_ff_bound"))
+        if model is not None and abs(model.plant.dt - self.dt) > 1e-12 * self.dt:
+            raise ReachsetError(f"the model's dt {model.plant.dt:g} s differs from the controller's dt {self.dt:g} s")
+        plant = model.plant if model is not None else lwa4p_joint_plant(dt=self.dt)
+        laws, settling = {}, {}
         for i, j in enumerate(self.joints):
             js = model.joints.get(j) if model is not None else None
             if js is not None:
-                ok, why, _ = check_gains(gains[j], js, u_max=float(u_max[i]), u_ff=u_ff, plant=model.plant)
+                # R*_u of the sets the monitor checks: alpha scaled by 1 + the model's inflation,
+                # plus U_ff and the model's recorded U_e,ff (systems.gains.certify)
+                ok, why, _ = check_gains(gains[j], js, u_max=float(u_max[i]), u_ff=u_ff, plant=model.plant,
+                                         inflation=model.inflation)
                 if not ok:
                     raise ReachsetError(f"joint {j}: {why}")
-                continue
             g = gains[j]
-            cl = closedloop.close_loop(lwa4p_joint_plant(), g.build_observer(), g.build_controller())
+            obs, ctrl = g.build(self.dt)
+            cl = closedloop.close_loop(plant, obs, ctrl)
             st = closedloop.stability(cl)
             if not st.stable:
                 raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
-        return gains, u_max
+            laws[j] = FeedbackLaw.of(ctrl, obs)
+            settling[j] = closedloop.settling_ticks(st.spectral_radius)
+        return dict(gains=gains, laws=laws, settling=settling, u_max=u_max, u_ff=u_ff, model=model)
+
+    def apply(self, cfg, cause):
+        """Take a validated configuration; a change of the loop (any joint's gains) starts
+        a transient at the next tick (``cause`` names it in the diagnostics)."""
+        changed = getattr(self, "gains", None) != cfg["gains"]
+        self.gains, self.laws, self.settling = cfg["gains"], cfg["laws"], cfg["settling"]
+        self.u_max, self.u_ff, self.model = cfg["u_max"], cfg["u_ff"], cfg["model"]
+        # per joint: where x0 and x_ref take the estimate components the law acts on
+        self.slots = {j: tuple(law.estimate_names) for j, law in self.laws.items()}
+        if changed:
+            self.begin_transient(cause)
+
+    def begin_transient(self, cause):
+        """The next tracking tick starts a transient (``cause``: start-up, gain change, end of braking)."""
+        self.transient_cause = cause
+        if not hasattr(self, "transient"):
+            self.transient = None
 
     def on_set_parameters(self, params):
         values = proposed_values(self, params)
@@ -166,13 +248,13 @@ class ControllerNode(Node):
                     model = mdl.load(p.value) if p.value else None
                 except ReachsetError as e:
                     return SetParametersResult(successful=False, reason=str(e))
-            if p.name in ("joints", "robot_params", "wait_for_monitor"):
+            if p.name in ("joints", "robot_params", "wait_for_monitor", "dt"):
                 return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
         try:
-            gains, u_max = self.validate(values, model)
+            cfg = self.validate(values, model)
         except ReachsetError as e:
             return SetParametersResult(successful=False, reason=str(e))
-        self.gains, self.model, self.u_max = gains, model, u_max
+        self.apply(cfg, "gain change")
         return SetParametersResult(successful=True)
 
     # -- data ----------------------------------------------------------------------------
@@ -197,6 +279,9 @@ class ControllerNode(Node):
 
     def on_safe_stop(self, msg):
         active = bool(msg.active)
+        if not active and (self.stop_active or not self.stop_known):
+            # tracking resumes from wherever braking/holding left the joints: a transient
+            self.begin_transient(self.transient_cause or "end of braking")
         if active != self.stop_active or not self.stop_known:
             what = f"({msg.kind}: {msg.reason}; stamp {stamp_ns(msg.header.stamp)})"
             if active:
@@ -274,13 +359,11 @@ class ControllerNode(Node):
                 q_d, qd_d, qdd_d = q.copy(), np.zeros_like(q), np.zeros_like(q)
             else:
                 q_d, qd_d, qdd_d = ref
+                self.check_reference_class(stamp, qdd_d)
+            self.track_transient(stamp)
             u = np.empty(len(self.joints))
             for i, j in enumerate(self.joints):
-                g = self.gains[j]
-                u[i] = (qdd_d[i] + g.omega ** 2 * (q_d[i] - q[i])
-                        + 2 * g.zeta * g.omega * (qd_d[i] - qd[i]))
-                if g.controller == "compensated":
-                    u[i] -= d[i]
+                u[i] = self.law_input(j, q[i], qd[i], d[i], q_d[i], qd_d[i], qdd_d[i])
         # full-robot feedback linearization: joints not controlled here get u_p = 0
         qf = np.zeros(self.robot.nv)
         qdf = np.zeros(self.robot.nv)
@@ -293,6 +376,57 @@ class ControllerNode(Node):
         pi.acceleration = [float(x) for x in u]
         self.input_pub.publish(pi)
         self.effort_pub.publish(Float64MultiArray(data=[float(x) for x in tau]))
+
+
+    def law_input(self, joint, q, qd, d, q_d, qd_d, qdd_d):
+        """u_p of one joint: the certified law (:class:`FeedbackLaw`) on the published estimate
+        ``x0`` (position, velocity, disturbance, in the observer's estimate order), the
+        reference in the same coordinates (zero for the disturbance) and ``u_ff = qdd_d``."""
+        est = {"q": q, "qd": qd, "d": d}
+        ref = {"q": q_d, "qd": qd_d}
+        names = self.slots[joint]
+        x0 = np.array([est[n] for n in names], dtype=np.float64)
+        x_ref = np.array([ref.get(n, 0.0) for n in names], dtype=np.float64)
+        u, _ = self.laws[joint](x0, x_ref, qdd_d)
+        return u[0]
+
+    def check_reference_class(self, stamp, qdd_d):
+        """Flag a reference with |qdd_d| > u_ff_bound (the class R_u is certified for, U_ff):
+        counted, the last one kept for the diagnostics, a warning logged the first time and
+        /diagnostics published at once when a run of flagged ticks begins. Nothing is clamped:
+        the tick is controlled by the same law; that R_u covers it is no longer claimed."""
+        over = np.abs(qdd_d) > self.u_ff
+        if not np.any(over):
+            self.flagged = False
+            return
+        i = int(np.argmax(np.abs(qdd_d)))
+        self.counters["reference_out_of_class"] += 1
+        self.out_of_class_last = (stamp, self.joints[i], float(qdd_d[i]))
+        if self.counters["reference_out_of_class"] == 1:
+            self.get_logger().warning(
+                f"reference out of class at stamp {stamp}: {self.joints[i]} |qdd_d| = {abs(qdd_d[i]):.4g} > "
+                f"u_ff_bound {self.u_ff:g} rad/s^2; R_u is not certified for it (counted reference_out_of_class "
+                "on /diagnostics; logged once)")
+        if not self.flagged:
+            self.flagged = True
+            self.publish_diagnostics()
+
+    def track_transient(self, stamp):
+        """Start the pending transient at this tracking tick (its end per joint from the
+        settling ticks of the joint's closed loop and ``dt``), and keep ``active`` current."""
+        if self.transient_cause is not None:
+            dt_ns = int(round(self.dt * 1e9))
+            ends = {j: stamp + k * dt_ns for j, k in self.settling.items()}
+            self.transient = {"cause": self.transient_cause, "start_ns": stamp, "end_ns": max(ends.values()),
+                              "end_ns_joint": ends, "active": True}
+            self.transient_cause = None
+            self.get_logger().info(
+                f"transient after the {self.transient['cause']} from stamp {stamp}: settles in "
+                f"{max(self.settling.values())} ticks (until stamp {self.transient['end_ns']}); the tracking error "
+                "is not claimed to be inside R*_e before it")
+            self.publish_diagnostics()
+        elif self.transient is not None:
+            self.transient["active"] = stamp < self.transient["end_ns"]
 
 
 def main(args=None):

@@ -1,6 +1,12 @@
-"""Per-joint gain parameters shared by the observer and controller nodes."""
+"""Per-joint gain parameters shared by the observer and controller nodes.
+
+Both nodes turn their parameters into one :class:`~reachset_ros.systems.gains.Gains` per
+joint (:func:`gains_from`), the type the synthesis certifies and writes into the model
+file: ``observer``, ``controller`` and ``eso_input`` (which plant input the ESO is fed) are
+one string per node, the numbers one value per joint or one for all.
+"""
 from ..errors import ReachsetError
-from ..systems.gains import DEFAULTS, Gains
+from ..systems.gains import DEFAULTS, ESO_INPUTS, Gains
 from .common import desc
 
 GAIN_DOCS = {
@@ -13,11 +19,16 @@ GAIN_DOCS = {
     "l3": ("ESO gain l3", 1e-3, 1e6),
     "eps": ("observer gain scaling epsilon, s", 1e-5, 1.0),
 }
+#: the string parameters: the loop structure (one per node)
+TYPE_PARAMS = ("observer", "controller", "eso_input")
 
 
 def declare_gain_parameters(node):
     node.declare_parameter("observer", DEFAULTS["observer"], desc("hg | eso"))
     node.declare_parameter("controller", DEFAULTS["controller"], desc("static | compensated"))
+    node.declare_parameter("eso_input", DEFAULTS["eso_input"],
+                           desc(f"{' | '.join(ESO_INPUTS)}: plant input the ESO is fed at tick k, u_p[k-1] or "
+                                "u_p[k] (an algebraic loop the controller solves); as in the model file's gains"))
     for k, (d, lo, hi) in GAIN_DOCS.items():
         node.declare_parameter(k, [float(DEFAULTS[k])], desc(d + "; one value per joint, or one for all"))
 
@@ -26,7 +37,7 @@ def gains_from(values: dict, joints):
     """Per-joint :class:`Gains` from parameter values (arrays of length 1 or len(joints))."""
     out = {}
     for i, j in enumerate(joints):
-        kw = {"observer": values["observer"], "controller": values["controller"]}
+        kw = {t: values[t] for t in TYPE_PARAMS if t in values}
         for k in GAIN_DOCS:
             arr = list(values[k])
             if len(arr) not in (1, len(joints)):
@@ -37,7 +48,7 @@ def gains_from(values: dict, joints):
 
 
 def current_values(node):
-    names = ["observer", "controller"] + list(GAIN_DOCS)
+    names = list(TYPE_PARAMS) + list(GAIN_DOCS)
     return {n: node.get_parameter(n).value for n in names}
 
 

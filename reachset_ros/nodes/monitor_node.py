@@ -4,13 +4,16 @@ Pairs ``/joint_states`` (y = position) and ``/plant_input`` (u_p) by header stam
 name, feeds :class:`reachset_ros.conformance.monitor.Monitor` one tick at a time, publishes
 ``/conformance/status`` every tick and ``/diagnostics`` at about 1 Hz. On the first
 violation, or on a fault (missing data for more than ``max_missing_ticks`` ticks, an
-invalid sample, a joint-name mismatch, a stamp going backwards), it publishes a latched
+invalid sample, a joint-name mismatch, a stamp going backwards, a stream on which the test
+cases the model needs cannot be formed: ``coverage``), it publishes a latched
 ``/safe_stop`` (reliable, transient local) and writes the offending window (the last
 k* + history ticks) to a bag. Only the ``~/reset`` service (std_srvs/Trigger) clears the
 stop. The model (sets, horizon, estimator) comes from ``model_file`` and can be swapped
 through the parameter service; a refused change leaves the running model as it was.
 Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
-``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes.
+``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes. A tick
+at which nothing was checked is published with ``conformant`` false (a violation is a
+margin < 0, and latches the stop).
 """
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ from std_srvs.srv import Trigger
 
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
-from ..conformance.monitor import FaultEvent, Monitor, MonitorModel, TickEvent
+from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
 from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
 from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
@@ -49,7 +52,8 @@ class MonitorCore:
 
     ``add_y``/``add_u`` take (stamp, names, values); completed ticks are processed in stamp
     order and returned as a list of events: a :class:`~reachset_ros.conformance.monitor.TickEvent`
-    per checked tick (its ``result`` is :meth:`Monitor.tick`'s dict) or a
+    per processed tick (its ``result`` is :meth:`Monitor.tick`'s dict; ``conformant`` only if
+    every joint checked a test case and none was violated) or a
     :class:`~reachset_ros.conformance.monitor.FaultEvent` (``kind``, ``reason``, ``joint``).
 
     What each kind of bad input becomes (docs/reliability.md, "Nodes"):
@@ -66,10 +70,15 @@ class MonitorCore:
       than ``max_pending`` ticks wait (``dropped_incomplete``); missing ticks end the test
       cases (as ``reachset check`` never lets a test case span a gap): ``gaps`` counts the
       gaps and ``missing_ticks`` the ticks missing in them. Long silence is the node's
-      watchdog's business.
+      watchdog's business;
+    * a stream on which the test cases the model needs cannot be formed (its period is not
+      the model's dt, or losses keep every test case short of k*): fault ``coverage`` from
+      :class:`~reachset_ros.conformance.monitor.CoverageWatch`, within ``max_missing_ticks``
+      ticks after the warm-up; ``unchecked_ticks`` counts ticks at which some joint checked
+      nothing, ``short_ticks`` those at which something but not step k* was checked.
     """
 
-    def __init__(self, model: mdl.ConformanceModel, joints=None):
+    def __init__(self, model: mdl.ConformanceModel, joints=None, max_missing_ticks=25):
         self.model = model
         self.joints = list(joints or model.joints)
         if len(set(self.joints)) != len(self.joints):
@@ -90,10 +99,12 @@ class MonitorCore:
         self.ticks_since_reset = 0
         keep = model.horizon + model.estimator.history + 2
         self.window = collections.deque(maxlen=keep)
+        self.coverage = CoverageWatch(self.dt_ns, model.estimator.history, model.horizon, max_missing_ticks)
 
     def reset(self):
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
         self.monitor.reset()
+        self.coverage.reset()
         self.ticks_since_reset = 0
         self.pending.clear()
         self.last_stamp = None
@@ -150,7 +161,7 @@ class MonitorCore:
                 self.counters["dropped_incomplete"] += 1
                 del self.pending[s]
             del self.pending[stamp]
-            events.append(self._process(stamp, entry["y"], entry["u"]))
+            events += self._process(stamp, entry["y"], entry["u"])
         while len(self.pending) > self.max_pending:
             # the oldest stamp goes (not the oldest arrival: a late half of an old tick must
             # not push out a newer tick that can still be completed)
@@ -175,8 +186,19 @@ class MonitorCore:
         if bad:
             self.counters["invalid_ticks"] += 1
             j = self.joints[bad[0]]
-            return FaultEvent(stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)
-        return TickEvent(stamp, res, duration)
+            return [FaultEvent(stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)]
+        mon = self.monitor
+        if mon.reached_horizon().all():
+            longest = mon.horizon
+        else:
+            longest = int(mon.longest_step().min())
+            self.counters["unchecked_ticks" if longest < 0 else "short_ticks"] += 1
+        events = [TickEvent(stamp, res, duration, longest)]
+        fault = self.coverage.update(stamp, longest)
+        if fault is not None:
+            self.counters["coverage_faults"] += 1
+            events.append(fault)
+        return events
 
 
 class MonitorNode(Node):
@@ -186,7 +208,9 @@ class MonitorNode(Node):
         super().__init__("monitor_node")
         self.declare_parameter("model_file", "", desc("conformance model YAML (identify/synthesize output)"))
         self.declare_parameter("joints", [""], desc("joints to monitor (default: all of the model)"))
-        self.declare_parameter("max_missing_ticks", 25, desc("ticks without a complete sample before a fault",
+        self.declare_parameter("max_missing_ticks", 25, desc("missing-data limit: ticks without a complete sample, or "
+                                                               "(after the warm-up) without the checks the model "
+                                                               "needs, before a fault",
                                                                1, 10000, integer=True))
         self.declare_parameter("window_dir", "bags/safe_stop", desc("where offending windows are written"))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
@@ -220,12 +244,13 @@ class MonitorNode(Node):
         self.stop_pub.publish(m)
 
     # -- configuration ------------------------------------------------------------------
-    def build(self, path, joints=None):
+    def build(self, path, joints=None, max_missing=None):
         """A new :class:`MonitorCore` for ``path`` (not applied); ``(core, model_id, reason)``."""
         try:
             model = mdl.load(path)
             joints = joints if joints is not None else [j for j in self.get_parameter("joints").value if j]
-            core = MonitorCore(model, joints or None)
+            core = MonitorCore(model, joints or None, max_missing if max_missing is not None
+                               else self.get_parameter("max_missing_ticks").value)
             model_id = mdl.file_sha256(path)[:12]
         except (ReachsetError, OSError) as e:
             return None, "", str(e)
@@ -256,10 +281,12 @@ class MonitorNode(Node):
             path = new.get("model_file", self.get_parameter("model_file").value)
             joints = [j for j in new.get("joints", self.get_parameter("joints").value) if j]
             if path:
-                core, model_id, why = self.build(path, joints)
+                core, model_id, why = self.build(path, joints, new.get("max_missing_ticks"))
                 if core is None:
                     return SetParametersResult(successful=False, reason=why)
                 self.apply(core, model_id, path)
+        elif "max_missing_ticks" in new and self.core is not None:
+            self.core.coverage.set_max_missing_ticks(new["max_missing_ticks"])
         return SetParametersResult(successful=True)
 
     # -- data ---------------------------------------------------------------------------
@@ -299,7 +326,10 @@ class MonitorNode(Node):
         stamp, res = ev.stamp, ev.result
         m = ConformanceStatus()
         to_stamp(m.header.stamp, stamp)
-        m.conformant = bool(all(s in ("ok", "gap_reset") for s in res["status"]))
+        # true only if every joint checked a test case and none was violated: a tick at which
+        # nothing was checked (warm-up after a start, reset or gap) is not conformant; a
+        # violation is a margin < 0 (margin is +1e300 where nothing was checked)
+        m.conformant = ev.conformant
         m.safe_stop_active = self.stop_active
         m.tick = int(self.core.ticks_since_reset)      # ticks processed since the last reset
         m.horizon = int(self.core.model.horizon)
@@ -410,13 +440,23 @@ class MonitorNode(Node):
             st.level = DiagnosticStatus.WARN
             st.message = ("waiting for " + " and ".join(never) if never
                           else "no tick yet: /joint_states and /plant_input arrive but no stamps paired")
+        elif self.core.coverage.last_longest < 0:
+            st.level, st.message = DiagnosticStatus.WARN, "nothing checked at the last tick (warm-up or gaps)"
+        elif self.core.coverage.last_longest < self.core.model.horizon:
+            st.level = DiagnosticStatus.OK
+            st.message = (f"conformant, checked up to step {self.core.coverage.last_longest} of "
+                          f"k*={self.core.model.horizon} (warm-up or gaps)")
         else:
             st.level, st.message = DiagnosticStatus.OK, "conformant"
         counts = collections.Counter(self.counters)
         counts["callback_errors"] = getattr(self, "callback_errors", 0)
+        values = {}
         if self.core is not None:
             counts.update(self.core.counters)
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counts.items())]
+            cov = self.core.coverage
+            values = {"longest_step": cov.last_longest, "horizon": self.core.model.horizon,
+                      "horizon_coverage": f"{cov.share:.4f}"}
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted({**counts, **values}.items())]
         arr.status = [st]
         self.diag_pub.publish(arr)
 

@@ -1,8 +1,14 @@
 """observer_node: HG or ESO per joint on /joint_states (+ /plant_input), publishes /observer/estimate.
 
-At a measurement stamped t the estimate (with the feedthrough of y[t]) is published
-stamped t; the observer state advances once the plant input stamped t arrives (the ESO
-needs it; the HG observer ignores it). Gains change only through the parameter service,
+The observer of each joint is the one its :class:`~reachset_ros.systems.gains.Gains` say
+(``observer``, the gains, and for the ESO ``eso_input``: fed u_p[k-1] or u_p[k]), built by
+the same code the synthesis certified. At a measurement stamped t the estimate
+``x0 = Co xo + Do_y y[t]`` (with the feedthrough of y[t], without that of u_p[t]: with
+``eso_input: current`` the controller solves that algebraic loop,
+:class:`~reachset_ros.systems.closedloop.FeedbackLaw`) is published stamped t; the observer
+state advances once the plant input stamped t arrives (the ESO needs it; the HG observer
+ignores it). It starts (and restarts after a gain change) at the first measurement from
+``LinearObserver.start_state``. Gains change only through the parameter service,
 atomically between ticks; invalid gains are refused with the reason.
 """
 import numpy as np
@@ -66,8 +72,7 @@ class ObserverNode(Node):
             self.counters["missing_input"] += 1
             self.advance(self.pending[1], self.last_u if hasattr(self, "last_u") else {j: 0.0 for j in self.joints})
         if not self.initialised:
-            self.states = {j: o.initial_state([y[j]] + [0.0] * (len(o.estimate_names) - 1), [y[j]], [0.0])
-                           for j, o in self.observers.items()}
+            self.states = {j: o.start_state(y[j]) for j, o in self.observers.items()}
             self.initialised = True
         out = JointEstimate()
         out.header.stamp = msg.header.stamp

@@ -36,6 +36,9 @@ from rclpy.parameter import Parameter
 from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
+from ..conformance import model as mdl
+from ..errors import ReachsetError
+from ..systems.gains import Gains, certify
 from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_parameters, spin_node
 
 GAIN_KEYS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
@@ -43,7 +46,33 @@ GAIN_KEYS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
 #: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
 TARGET_KEYS = {"controller_node": GAIN_KEYS + ("u_max",),
                "observer_node": tuple(k for k in GAIN_KEYS if k not in ("omega", "zeta"))}
-TYPE_KEYS = ("observer", "controller")
+#: the loop structure, one string per node (``eso_input``: which plant input the ESO is fed;
+#: a model file without it means "previous", as :meth:`Gains.from_model` reads it)
+TYPE_KEYS = ("observer", "controller", "eso_input")
+TYPE_DEFAULTS = {"eso_input": "previous"}
+
+
+def certify_synthesis(data, model_file):
+    """Empty when every synthesised joint's R*_u is inside U_p for the model it will run with.
+
+    Per joint of ``data["joints"]`` (``reachset synthesize --json``): the model file's gains
+    and sets, its ``inflation`` (the sets the monitor checks are scaled by ``1 + inflation``),
+    ``U_ff`` and the recorded ``U_e,ff`` (:func:`~reachset_ros.systems.gains.certify`, with the
+    joint's ``u_max`` and ``u_ff``). Otherwise the reason, one line, naming the joint.
+    """
+    try:
+        model = mdl.load(model_file)
+        for name, j in data["joints"].items():
+            js = model.joints.get(name)
+            if js is None:
+                return f"joint {name}: not in the model {model_file}"
+            c = certify(Gains.from_model(js.gains), js, model.inflation, float(j["u_max"]),
+                        float(j.get("u_ff", 2.0)), plant=model.plant)
+            if not c.ok:
+                return f"joint {name}: {c.reason}"
+    except (ReachsetError, KeyError, TypeError, ValueError) as e:
+        return f"the synthesis result cannot be certified: {one_line(e)}"
+    return ""
 
 
 def one_line(text):
@@ -106,7 +135,7 @@ def target_values(target, current, synthesis, keys):
     uncovered = [j for j in joints if j not in synthesis]
     values = {}
     for t in TYPE_KEYS:
-        kinds = {j: str(g.get(t, "")) for j, g in synthesis.items()}
+        kinds = {j: str(g.get(t, TYPE_DEFAULTS.get(t, ""))) for j, g in synthesis.items()}
         if len(set(kinds.values())) > 1:
             a, b = sorted(set(kinds.values()))[:2]
             ja = next(j for j, k in kinds.items() if k == a)
@@ -245,7 +274,9 @@ class SynthesisNode(Node):
 
         Notes
         -----
-        Per target, in the order controller_node, observer_node, monitor_node (those in
+        First every joint is certified for the model file (:func:`certify_synthesis`: R*_u of
+        the sets the monitor checks inside U_p), whatever the targets. Then per target, in
+        the order controller_node, observer_node, monitor_node (those in
         ``targets``), the current values are read through ``get_parameters`` and the new
         ones planned (:func:`target_values`; the controller also gets ``u_max`` and
         ``model_file``, the monitor ``model_file``) before anything is set, so a plan that
@@ -255,6 +286,9 @@ class SynthesisNode(Node):
         previous values of the same parameters back, the last updated first. The node's
         own ``model_file`` is set only when every target accepted.
         """
+        why = certify_synthesis(data, model_file)
+        if why:
+            return False, f"not certified: {why}"
         synthesis = {n: {**j.get("gains", {}), **({"u_max": j["u_max"]} if "u_max" in j else {})}
                      for n, j in data["joints"].items()}
         targets = list(self.get_parameter("targets").value)

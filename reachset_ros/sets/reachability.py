@@ -35,7 +35,8 @@ most ``eps`` times the truncated sum (``eps`` is relative, default ``1e-6``); th
 outer bound is the truncated sum plus the tail bound. It contains the mRPI set, hence
 every state reachable from the disturbance-free equilibrium and the limit of every
 trajectory; unlike Rakovic's set it need not itself be positively invariant. All of this
-is exact arithmetic on zonotopes up to floating-point rounding.
+is exact arithmetic on zonotopes up to floating-point rounding, which
+:func:`radius_coefficients` bounds and adds (outward rounding, see its docstring).
 
 The "rakovic" method (Rakovic, Kerrigan, Kouramas, Mayne 2005, IEEE TAC 50(3)) needs a
 disturbance set with the origin in its interior (full-dimensional on the reachable
@@ -399,6 +400,20 @@ def invariant_outer(A, G, C=None, eps=EPS, method="auto", center=None):
                         spectral_radius=rho)
 
 
+#: Unit roundoff of IEEE double precision.
+UNIT_ROUNDOFF = np.finfo(float).eps / 2
+
+
+def _gamma(n):
+    """``gamma_n = n u / (1 - n u)``: relative error bound of an ``n``-term sum or dot product."""
+    return n * UNIT_ROUNDOFF / (1.0 - n * UNIT_ROUNDOFF)
+
+
+def _norm_inf(M):
+    """An upper bound of ``||M||_inf`` in floating point (the row sums' rounding included)."""
+    return float(np.abs(M).sum(axis=1).max(initial=0.0)) * (1.0 + _gamma(M.shape[1] + 1))
+
+
 def _abs_sums(Ar, Gr, Mr, eps, keep=False, block=16, max_block=512):
     """Truncated absolute impulse-response sums with an adaptive, sound tail bound.
 
@@ -443,9 +458,106 @@ def _abs_sums(Ar, Gr, Mr, eps, keep=False, block=16, max_block=512):
             b *= 2
 
 
+def _abs_sums_rounded(Ar, Gr, Mr, eps, chunk=256):
+    """Sound upper bounds of ``sum_{i>=0} |Mr Ar^i g_j|``, rounding included (outward rounding).
+
+    Computed step by step, ``x^_{i+1} = fl(Ar x^_i)`` (one product per step: the local error
+    is ``|delta_i| <= gamma_r |Ar| |x^_i|``, Higham, *Accuracy and Stability of Numerical
+    Algorithms*, 2nd ed., eq. (3.13)), with the identity carried along as extra generators,
+    which gives ``fl(Ar^i)`` and the gain ``Z = sum_{m>=0} |[Mr; I] Ar^m|`` from a local error
+    to the sums (``x^_i - x_i = sum_{k<i} Ar^{i-1-k} delta_k``). With ``R = sum_{i<s} |x^_i|``
+    (computed sums of ``s`` non-negative terms divided by ``1 - gamma_s``, Higham eq. (4.3)):
+
+    * truncated part: ``sum_{i<s} |Mr x_i| <= S + gamma_r |Mr| R + gamma_r Z_M |Ar| R``;
+    * tail: ``sum_{i>=s} |Mr x_i| <= Z_M |x_s|`` with ``|x_s| <= |x^_s| + gamma_r Z_I |Ar| R``
+      (replaces the norm-based tail of :func:`_abs_sums`, which rounding would floor);
+    * ``Z`` itself: ``Z <= B + Z T`` with ``B`` the computed truncated sums (plus their
+      product rounding) and ``T = |fl(Ar^s)| + gamma_r |Ar| R_I + gamma_r Z_I |Ar| R_I``; with
+      ``v = 1^T R_I > 0`` and ``v T <= v / 2`` (checked) the Neumann series gives
+      ``Z <= B + B T + 2 c v T^2`` (``c`` the row-wise ``max B / v``). ``Z_I`` inside ``T``
+      (an O(u) term) is taken as ``2 R_I``: the one first-order step, its neglected part
+      O(u^2).
+
+    Returns ``(K, R_all, s, a, S_inner)``: the bounds ``K[r, j]``, ``R_all[k, j] >= sum_{i>=0}
+    |(Ar^i g_j)_k|``, the truncation length, ``a = ||fl(Ar^s)||_inf`` and the plain truncated
+    sums (inner). Raises :class:`NotStableError` when the sums do not converge or the
+    rounding bound does not close (a loop too ill-conditioned for double precision).
+    """
+    r, g = Gr.shape
+    p = Mr.shape[0]
+    if r == 0 or g == 0:
+        return np.zeros((p, g)), np.zeros((r, g)), 0, 0.0, np.zeros((p, g))
+    gr = _gamma(r)
+    absA, absM = np.abs(Ar), np.abs(Mr)
+    X = np.hstack([Gr, np.eye(r)])
+    nc = g + r
+    S = np.zeros((p, nc))
+    R = np.zeros((r, nc))
+    buf = np.empty((chunk, r, nc))
+    s = 0
+    while True:
+        for i in range(chunk):
+            buf[i] = X
+            X = Ar @ X
+        S += np.abs(np.matmul(Mr, buf)).sum(axis=0)
+        R += np.abs(buf).sum(axis=0)
+        s += chunk
+        a = _norm_inf(X[:, g:])
+        if a < 0.25:
+            gs = _gamma(s)
+            R_c, S_c = R / (1.0 - gs), S / (1.0 - gs)
+            RI, Rg = R_c[:, g:], R_c[:, :g]
+            xs = np.abs(X[:, :g]) + gr * (2.0 * RI) @ absA @ Rg
+            tail = (2.0 * S_c[:, g:]) @ xs
+            Sg = S_c[:, :g]
+            if np.all(tail <= eps * (Sg + 1e-6 * Sg.max(axis=1, keepdims=True))):
+                break
+        if s >= MAX_STEPS:
+            raise NotStableError(f"tail bound did not converge within {MAX_STEPS} steps "
+                                 f"(spectral radius too close to 1)")
+    B = np.vstack([S_c[:, g:] + gr * (absM @ RI), RI])
+    T = np.abs(X[:, g:]) + gr * (absA @ RI) + gr * ((2.0 * RI) @ absA @ RI)
+    v = RI.sum(axis=0)
+    if not np.all(v @ T <= 0.5 * v):
+        raise NotStableError("rounding bound of the impulse-response sums did not close "
+                             "(the closed loop is too ill-conditioned for double precision)")
+    c = (B / v[None, :]).max(axis=1)
+    Z = (B + B @ T + 2.0 * c[:, None] * (v @ T @ T)[None, :]) * (1.0 + _gamma(3 * r + 8))
+    ZM, ZI = Z[:p], Z[p:]
+    dx = gr * (ZI @ absA @ Rg)                            # propagated local errors, per state
+    xs = np.abs(X[:, :g]) + dx
+    K = S_c[:, :g] + gr * (absM @ Rg) + gr * (ZM @ absA @ Rg) + ZM @ xs
+    R_all = Rg + dx + ZI @ xs
+    return K, R_all, s, a, S[:, :g]
+
+
+def _coordinate_restriction(A, E):
+    """Indices ``J`` of the states reachable from ``E`` through the *nonzero pattern* of ``A``.
+
+    The smallest index set containing the nonzero rows of ``E`` and closed under ``A`` (every
+    ``i`` with ``A[i, j] != 0`` for some ``j`` in ``J``). Exact: outside ``J`` every ``A^k E``
+    is exactly zero, in floating point as well, so ``C A^k E = C[:, J] A[J, J]^k E[J]``
+    with no rounding from a change of coordinates (e.g. the plant's constant disturbance
+    ``d``, whose row of ``A`` is the unit vector, is dropped exactly).
+    """
+    nz = A != 0
+    J = np.any(E != 0, axis=1)
+    while True:
+        new = J | np.any(nz[:, J], axis=1)
+        if np.array_equal(new, J):
+            return np.nonzero(J)[0]
+        J = new
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class RadiusInfo:
-    """Details of :func:`radius_coefficients`: the truncated (inner) coefficients and ``s``, ``a``."""
+    """Details of :func:`radius_coefficients`.
+
+    ``Kw_inner``, ``Kv_inner``: the truncated (inner) coefficients; ``s``, ``a``: truncation
+    length and tail contraction; ``exact_restriction``: the unreachable states were dropped by
+    selecting coordinates (exact, :func:`_coordinate_restriction`) rather than by an orthogonal
+    projection, so the floating-point bound covers every rounding.
+    """
 
     Kw_inner: np.ndarray
     Kv_inner: np.ndarray
@@ -453,6 +565,7 @@ class RadiusInfo:
     a: float
     reachable_dim: int
     spectral_radius: float
+    exact_restriction: bool = False
 
 
 def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_info=False):
@@ -460,14 +573,37 @@ def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_
 
     For ``z[k+1] = A z + Ew diag(alpha_w) bw + Ev diag(alpha_v) bv``,
     ``out = C z + Dw diag(alpha_w) bw + Dv diag(alpha_v) bv`` with ``bw, bv`` in unit boxes,
-    the set of steady-state outputs is ``(+)_{i>=0} C A^i W (+) D (...)``; its box radius
-    after the map ``H`` is ``Kw alpha_w + Kv alpha_v`` with
+    the set of steady-state outputs is ``(+)_{i>=0} C A^i W (+) D (...)`` (the mRPI set of paper
+    Sec. III-A, projected); its box radius after the map ``H`` is ``Kw alpha_w + Kv alpha_v`` with
 
     ``K[:, j] = |H D_j| + sum_{i>=0} |H C A^i E_j|``  (exact, an infinite sum).
 
-    The returned ``Kw``, ``Kv`` are *upper bounds* of these sums (truncated sum plus the
-    tail bound of the module docstring), so ``Kw alpha_w + Kv alpha_v`` is a sound radius
-    for every ``alpha >= 0``, and linear in ``alpha`` (the synthesis' inner LP relies on it).
+    The returned ``Kw``, ``Kv`` are *upper bounds* of these sums, in floating point: the
+    truncated sum, plus the tail bound of the module docstring, plus a bound on every
+    rounding error (outward rounding), so ``Kw alpha_w + Kv alpha_v`` is a sound radius for
+    every ``alpha >= 0``, and linear in ``alpha`` (the synthesis' inner LP relies on it).
+
+    Rounding (``u`` the unit roundoff, ``gamma_n = n u / (1 - n u)``; Higham, *Accuracy and
+    Stability of Numerical Algorithms*, 2nd ed., Lemma 3.1, eqs. (3.5), (4.3)). The matrices
+    ``A, E, C, D, H`` as given are the system (its composition from plant/observer/controller
+    is a separate computation). With ``J`` the exact coordinate restriction, ``Ar = A[J, J]``,
+    ``x_i = Ar^i g_j`` and ``x^_i`` its computed value:
+
+    * powers: ``||x^_i - Ar^b x^_{i-b}||_inf <= loc ||x^_{i-b}||_inf`` (see :func:`_abs_sums`);
+      the local errors ``delta_i`` propagate as ``x^_i - x_i = sum Ar^{i-k} delta_k``, so
+      ``sum_i |M (x^_i - x_i)| <= Z_M 1 * sum_k ||delta_k||_inf`` with
+      ``Z_M = sum_{m>=0} |M Ar^m|`` (computed by the same routine with generators ``I``;
+      doubled, which covers its own relative error, itself of the order of this bound);
+    * sums of ``s`` non-negative terms: ``sum <= fl(sum) / (1 - gamma_{s})``; products
+      ``|fl(M x) - M x| <= gamma_r |M| |x|``; ``fl(H C)``, ``fl(H D)``: ``gamma |H| |C|``;
+    * the tail uses ``a >= ||Ar^s||_inf`` including the rounding of ``fl(Ar^s)``, and the
+      rounding-corrected ``R``;
+    * the final few operations that form the bound: a factor ``1 + gamma_{p+r+32}``.
+
+    When the coordinate restriction still contains a mode that is not stable (an
+    unreachable mode the nonzero pattern cannot separate), the orthonormal reachable-subspace
+    projection is used instead; its rounding (``V^T A V``) is then not covered
+    (``info.exact_restriction`` is False). The closed loops of this package never take that path.
 
     Parameters
     ----------
@@ -500,25 +636,36 @@ def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_
     Ew = np.asarray(Ew, float).reshape(n, -1)
     Ev = np.asarray(Ev, float).reshape(n, -1)
     C = np.atleast_2d(np.asarray(C, float))
-    HC = C if H is None else np.atleast_2d(np.asarray(H, float)) @ C
+    Hm = None if H is None else np.atleast_2d(np.asarray(H, float))
+    HC = C if Hm is None else Hm @ C
     E = np.hstack([Ew, Ev])
     gw = Ew.shape[1]
-    V, Ar, rho = _restrict(A, E)
-    S, R, s, a, _ = _abs_sums(Ar, V.T @ E, HC @ V, eps)
-    K_inner = S
-    if s:
-        tail = (a / (1.0 - a)) * R.max(axis=0)[None, :] * np.abs(HC @ V).sum(axis=1)[:, None]
-        K = S + tail
-    else:
-        K = S
     p = C.shape[0]
+    V, Ar_o, rho = _restrict(A, E)
+    J = _coordinate_restriction(A, E)
+    AJ = A[np.ix_(J, J)]
+    exact = J.size == 0 or float(np.max(np.abs(np.linalg.eigvals(AJ)))) < 1.0 - 1e-12
+    if exact:
+        Ar, Gr, Mr = AJ, E[J], HC[:, J]
+    else:
+        Ar, Gr, Mr = Ar_o, V.T @ E, HC @ V
+    K, R_all, s, a, K_inner = _abs_sums_rounded(Ar, Gr, Mr, eps)
+    q, r = Mr.shape
+    if s and Hm is not None and exact:                     # fl(H C) instead of H C
+        K = K + _gamma(p) * ((np.abs(Hm) @ np.abs(C))[:, J] @ R_all)
     D = np.hstack([np.zeros((p, gw)) if Dw is None else np.asarray(Dw, float).reshape(p, gw),
                    np.zeros((p, Ev.shape[1])) if Dv is None else np.asarray(Dv, float).reshape(p, -1)])
-    HD = np.abs(D if H is None else np.atleast_2d(np.asarray(H, float)) @ D)
-    K = K + HD
+    if Hm is None:
+        HD = np.abs(D)
+        HDb = HD
+    else:
+        HD = np.abs(Hm @ D)
+        HDb = HD + _gamma(p) * (np.abs(Hm) @ np.abs(D))
+    K = (K + HDb) * (1.0 + _gamma(q + r + 32))
     K_inner = K_inner + HD
     Kw, Kv = K[:, :gw], K[:, gw:]
     if return_info:
         return Kw, Kv, RadiusInfo(Kw_inner=K_inner[:, :gw], Kv_inner=K_inner[:, gw:], s=s, a=a,
-                                  reachable_dim=V.shape[1], spectral_radius=rho)
+                                  reachable_dim=V.shape[1], spectral_radius=rho,
+                                  exact_restriction=bool(exact))
     return Kw, Kv

@@ -17,7 +17,8 @@ Submodules:
 * :mod:`~reachset_ros.synthesis.config`: configuration (``config/synthesis.yaml``) and the
   search space of ``theta`` (:class:`SearchSpace`, :func:`components_from_gains`).
 * :mod:`~reachset_ros.synthesis.reference_error`: the closed loop driven by references and
-  the reference error of Appendix B (:class:`ReferenceMethod`, :func:`reference_error`).
+  the reference error of Appendix B (:class:`ReferenceMethod`, :func:`reference_error` over
+  recorded references, :func:`class_reference_error` over a :class:`ReferenceClass`).
 * :mod:`~reachset_ros.synthesis.problem`: the per-joint problem (:class:`JointProblem`) and
   the Theorem-1 constraints on alpha (:class:`AlphaPolytope`).
 * :mod:`~reachset_ros.synthesis.search`: the inner LP per ``theta`` (:class:`Evaluator`) and
@@ -39,9 +40,9 @@ optional reference/estimate topics); no ROS import.
 """
 from .config import (DEFAULT_CONFIG, PARAMS, PENALTY, U_MARGIN, SearchSpace, components_from_gains,
                      config_path, load_config, u_max_for)
-from .reference_error import (LoopIO, LTIPlan, ReferenceErrorSets, ReferenceMethod, lti_simulate, loop_io,
-                              reference_error, reference_windows, simulate_closed_loop, steady_state,
-                              steady_state_solver, zero_reference_error)
+from .reference_error import (LoopIO, LTIPlan, ReferenceClass, ReferenceErrorSets, ReferenceMethod,
+                              class_reference_error, lti_simulate, loop_io, reference_error, reference_windows,
+                              simulate_closed_loop, steady_state, steady_state_solver)
 from .problem import AlphaPolytope, JointProblem, problems_from_series
 from .search import Evaluation, Evaluator, LoopData
 from .result import JointResult
@@ -51,6 +52,6 @@ from .pipeline import BagSynthesis, iterate, synthesize_bags
 __all__ = ["DEFAULT_CONFIG", "load_config", "config_path", "u_max_for", "SearchSpace", "PARAMS", "PENALTY",
            "U_MARGIN", "components_from_gains", "LoopIO", "loop_io", "LTIPlan", "lti_simulate",
            "simulate_closed_loop", "steady_state", "steady_state_solver", "reference_windows", "ReferenceMethod",
-           "ReferenceErrorSets", "zero_reference_error", "reference_error", "AlphaPolytope", "JointProblem",
-           "problems_from_series", "Evaluation", "LoopData", "Evaluator", "JointResult", "combined", "separate",
-           "reidentify", "lqg_baseline", "synthesize", "iterate", "BagSynthesis", "synthesize_bags"]
+           "ReferenceErrorSets", "ReferenceClass", "class_reference_error", "reference_error", "AlphaPolytope",
+           "JointProblem", "problems_from_series", "Evaluation", "LoopData", "Evaluator", "JointResult", "combined",
+           "separate", "reidentify", "lqg_baseline", "synthesize", "iterate", "BagSynthesis", "synthesize_bags"]

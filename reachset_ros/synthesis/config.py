@@ -5,8 +5,11 @@ omega, zeta, h1, h2; ESO + compensated feedback: omega, zeta, l1, l2, l3; paper 
 :data:`DEFAULT_CONFIG` / :func:`load_config` (``config/synthesis.yaml``): search settings,
 ``U_ff`` and ``U_p`` per joint (:func:`u_max_for`) and, per observer family, the free
 parameters, start values, box and log-scaled parameters; :class:`SearchSpace` is that box
-(with command-line overrides) and builds the observer and controller of a parameter vector;
-:func:`components_from_gains` does the same for a model file's ``gains``.
+(with command-line overrides); a parameter vector becomes a
+:class:`~reachset_ros.systems.gains.Gains` (:meth:`SearchSpace.to_gains`), the one gains type,
+which builds the observer and controller that are certified and writes the model file's
+``gains`` entry that the nodes run; :func:`components_from_gains` builds the loop of a model
+file's ``gains``.
 """
 from __future__ import annotations
 
@@ -19,11 +22,10 @@ import numpy as np
 import yaml
 
 from ..errors import ReachsetError
-from ..systems.controllers import compensated_feedback, static_feedback
-from ..systems.observers import extended_state_observer, high_gain_observer
+from ..systems.gains import ESO_INPUTS, FAMILY_PARAMS, Gains
 
 #: Parameters of each observer family (the controller adds omega, zeta).
-PARAMS = {"hg": ("omega", "zeta", "h1", "h2"), "eso": ("omega", "zeta", "l1", "l2", "l3")}
+PARAMS = FAMILY_PARAMS
 #: Penalty added to the merit of infeasible (2x: unstable) parameter vectors.
 PENALTY = 1e6
 #: Relative margin kept from U_p in the LP so that the floating-point clean-up of alpha
@@ -149,6 +151,8 @@ class SearchSpace:
             raise ReachsetError(f"unknown controller {self.controller!r} (static or compensated)")
         if self.controller == "compensated" and self.observer != "eso":
             raise ReachsetError("the compensated controller needs a disturbance estimate: use the eso observer")
+        if self.eso_input not in ESO_INPUTS:
+            raise ReachsetError(f"eso_input must be previous or current, not {self.eso_input!r}")
         names = PARAMS[self.observer]
         for n in self.free:
             if n not in names:
@@ -236,46 +240,31 @@ class SearchSpace:
             v[n] = float(lo * (hi / lo) ** t) if n in self.log else float(lo + t * (hi - lo))
         return v
 
+    def to_gains(self, values):
+        """The :class:`~reachset_ros.systems.gains.Gains` of the parameter values (this
+        space's observer, controller and ``eso_input``)."""
+        return Gains(observer=self.observer, controller=self.controller, eso_input=self.eso_input,
+                     eps=float(values["eps"]), **{n: float(values[n]) for n in PARAMS[self.observer]})
+
     def build(self, values):
-        """Observer and controller of the parameter values."""
-        v = values
-        if self.observer == "hg":
-            obs = high_gain_observer(v["h1"], v["h2"], v["eps"], self.dt)
-        else:
-            obs = extended_state_observer(v["l1"], v["l2"], v["l3"], v["eps"], self.dt, self.eso_input)
-        ctrl = (static_feedback if self.controller == "static" else compensated_feedback)(v["omega"], v["zeta"])
-        return obs, ctrl
+        """Observer and controller of the parameter values (through :meth:`to_gains`: the
+        loop the nodes build from the same gains)."""
+        return self.to_gains(values).build(self.dt)
 
     def gains(self, values):
-        """The gains entry of a model file (the controller and observer nodes read it)."""
-        g = {"observer": self.observer, "controller": self.controller}
-        for n in PARAMS[self.observer]:
-            g[n] = float(values[n])
-        g["eps"] = float(values["eps"])
-        if self.observer == "eso":
-            g["eso_input"] = self.eso_input
-        return g
+        """The gains entry of a model file (:meth:`Gains.model_dict`; the nodes read it)."""
+        return self.to_gains(values).model_dict()
 
     @classmethod
     def from_gains(cls, gains, dt=0.004):
-        """A space with every parameter fixed at the values of a model file's ``gains``."""
-        if not isinstance(gains, dict) or "observer" not in gains:
-            raise ReachsetError("gains must name the observer (hg or eso)")
-        obs = gains["observer"]
-        if obs not in PARAMS:
-            raise ReachsetError(f"gains: unknown observer {obs!r}")
-        try:
-            values = {n: float(gains[n]) for n in PARAMS[obs]}
-        except KeyError as e:
-            raise ReachsetError(f"gains: missing {e.args[0]} for the {obs} loop") from None
-        except (TypeError, ValueError):
-            raise ReachsetError("gains: parameter values must be numbers") from None
-        values["eps"] = float(gains.get("eps", 0.01))
-        return cls(obs, gains.get("controller", "static" if obs == "hg" else "compensated"), (), values, {},
-                   frozenset(), gains.get("eso_input", "previous"), dt)
+        """A space with every parameter fixed at the values of a model file's ``gains``
+        (read by :meth:`Gains.from_model`)."""
+        g = gains if isinstance(gains, Gains) else Gains.from_model(gains)
+        values = {n: float(getattr(g, n)) for n in PARAMS[g.observer]}
+        values["eps"] = float(g.eps)
+        return cls(g.observer, g.controller, (), values, {}, frozenset(), g.eso_input, dt)
 
 
 def components_from_gains(gains, dt=0.004):
-    """``(observer, controller)`` of a model file's ``gains`` dict (for the nodes)."""
-    sp = SearchSpace.from_gains(gains, dt)
-    return sp.build(sp.values)
+    """``(observer, controller)`` of a model file's ``gains`` dict (:meth:`Gains.from_model`)."""
+    return Gains.from_model(gains).build(dt)

@@ -18,7 +18,7 @@ from ..systems.closedloop import analyze, close_loop, radius_coefficients
 from ..systems.controllers import lqg
 from ..systems.plant import lwa4p_robot_model
 from .config import PARAMS, SearchSpace
-from .reference_error import ReferenceMethod, reference_error, zero_reference_error
+from .reference_error import ReferenceMethod
 from .result import finalize
 from .search import Evaluator, optimise
 
@@ -153,7 +153,7 @@ def lqg_baseline(problem, alpha_w, alpha_v, r_values, Q=None, form="predictor"):
             row.update(stable=False, error=an.stability.message)
             rows.append(row)
             continue
-        ref = reference_error(pb.plant, obs, ctrl, pb.references) if pb.references else zero_reference_error()
+        ref = pb.reference_sets(obs, ctrl)
         # method 3: the reference error is part of R*_e and R*_u
         in_sets = pb.reference_method == ReferenceMethod.REFERENCE_SET
         re = float(an.re_norm + (ref.norm if in_sets else 0.0))

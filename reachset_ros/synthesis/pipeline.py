@@ -1,7 +1,8 @@
 """Data in, results out: synthesis from bags (``reachset synthesize``) and the iterative procedure.
 
 :func:`synthesize_bags` reads bags (``/joint_states``, ``/plant_input`` and the optional
-``/reference``), builds the per-joint problems and runs a mode (:class:`BagSynthesis`, which
+``/reference``, or a reference class instead: one of them is required), builds the per-joint
+problems and runs a mode (:class:`BagSynthesis`, which
 also makes the model file). :func:`iterate` is the paper's iterative procedure (Sec. III-D,
 Fig. 4) around a user-given ``record(gains) -> data`` callable.
 """
@@ -15,6 +16,7 @@ import numpy as np
 
 from .. import conformance as cf
 from ..bags import read_joint_series
+from ..bags.messages import REFERENCE_TOPIC
 from ..bags.references import read_references
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
@@ -23,13 +25,18 @@ from ..systems.plant import lwa4p_joint_plant
 from .config import SearchSpace, load_config, u_max_for
 from .modes import synthesize
 from .problem import problems_from_series
-from .reference_error import ReferenceMethod
+from .reference_error import ReferenceClass, ReferenceMethod
 
 
 def iterate(record, series, space, iterations=2, final_reidentify=True, plant=None, estimator=None,
             horizon=125, u_max=26.0, u_ff=2.0, search=None, seed=0,
-            reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004):
+            reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004, allow_weak_horizon=False,
+            reference_class=None):
     """The paper's iterative procedure (Sec. III-D, Fig. 4).
+
+    Data without references need ``reference_class`` (:class:`ReferenceClass`, Appendix B).
+
+    ``horizon`` obeys :func:`reachset_ros.conformance.kernels.require_minimum_horizon`.
 
     1. synthesise (combined) on the initial data ``series``;
     2. ``record(gains)`` with the new gains (``{joint: gains}``) returns new data: a list of bag
@@ -48,6 +55,7 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
     """
     plant = plant or lwa4p_joint_plant(dt=dt)
     estimator = estimator or Estimator("fd")
+    cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
     thm = cf.Theorem1.build(plant, horizon)
     history = []
     data, refs = _as_series(series, dt)
@@ -56,7 +64,7 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
         raise ReachsetError("iterate: no data")
     for it in range(int(iterations)):
         probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
-                                     thm=thm)
+                                     thm=thm, reference_class=reference_class)
         seeds = {n: [r.params] for n, r in prev.items()} if prev else None
         res = synthesize(probs, space, "combined", search, seed, seeds, with_separate=(it == 0))
         history.append({"step": f"synthesis {it + 1}", "results": res})
@@ -65,7 +73,7 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
             data, refs = _as_series(record({n: r.gains() for n, r in res.items()}), dt)
     if final_reidentify and prev:
         probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
-                                     thm=thm)
+                                     thm=thm, reference_class=reference_class)
         res = synthesize(probs, space, "reidentify", gains={n: r.gains() for n, r in prev.items()})
         history.append({"step": "re-identification", "results": res})
     return history
@@ -99,10 +107,16 @@ class BagSynthesis:
     seed: int
     reference_method: int
     bags: tuple
+    minimum_horizon: int = None         # the plant's minimum k* (kernels.minimum_horizon)
+    horizon_below_minimum: bool = False  # k* accepted below it (allow_weak_horizon)
+    reference_class: object = None      # ReferenceClass used instead of/over the recorded references
 
     def as_dict(self):
         d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
-             "data": self.report.as_dict(), "reference_method": self.reference_method, "seed": self.seed}
+             "data": self.report.as_dict(), "reference_method": self.reference_method, "seed": self.seed,
+             "horizon": self.horizon, "minimum_horizon": self.minimum_horizon,
+             "horizon_below_minimum": self.horizon_below_minimum,
+             "reference_class": self.reference_class.as_dict() if self.reference_class is not None else None}
         if self.space is not None:
             d.update(observer=self.space.observer, controller=self.space.controller, free=list(self.space.free),
                      search_box={n: list(self.space.bounds[n]) for n in self.space.free})
@@ -116,14 +130,15 @@ class BagSynthesis:
                                       tuple(r.c_v.tolist()), r.test_cases, self.horizon, r.gains(),
                                       {"reference_error": r.reference, "conformant": r.conformant})
         return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints, 0.0,
-                                    mdl.provenance(self.bags, command))
+                                    mdl.provenance(self.bags, command), self.minimum_horizon,
+                                    self.horizon_below_minimum)
 
 
 def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controller=None, free=None, fix=None,
                     bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
-                    dt=0.004):
+                    dt=0.004, allow_weak_horizon=False, reference_class=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -138,6 +153,14 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     config : path of a synthesis config (default ``config/synthesis.yaml``)
     model : path of a model file (mode reidentify: its gains are kept; its plant, estimator
         and horizon are used unless given)
+    allow_weak_horizon : bool
+        Accept a horizon below the plant's minimum (recorded in the model); otherwise such a
+        horizon is refused (:func:`reachset_ros.conformance.kernels.require_minimum_horizon`,
+        the rule ``identify`` applies too).
+    reference_class : ReferenceClass, optional
+        Bound the reference error (Appendix B) over this class instead of the bags'
+        ``/reference`` (which must then lie in it). Without it every joint needs recorded
+        references (reidentify: or a class recorded in the model); otherwise refused.
 
     Returns
     -------
@@ -155,6 +178,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         horizon = base.horizon if horizon is None else int(horizon)
         est = base.estimator if estimator is None else Estimator.named(estimator, base.plant)
         gains = {n: j.gains for n, j in base.joints.items()}
+        model_classes = {n: (j.extra or {}).get("reference_error", {}).get("reference_class")
+                         for n, j in base.joints.items()}
         names = list(base.joints) if not joints else list(joints)
         for n in names:
             if n not in base.joints:
@@ -167,9 +192,11 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         horizon = 125 if horizon is None else int(horizon)
         est = Estimator.named(estimator or "fd", lwa4p_joint_plant(dt=dt))
         gains, names = None, (list(joints) if joints else None)
+        model_classes = {}
         space = SearchSpace.from_config(cfg, observer, controller, free, fix, bounds, eso_input, dt)
     if horizon < 0:
         raise ReachsetError("horizon must be >= 0")
+    k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
     series, report = read_joint_series(list(bags), names, plant.dt)
     names = list(series)
     cf.require_horizon(series, est.history, horizon, bags)
@@ -200,7 +227,32 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     if seed < 0:
         raise ReachsetError(f"seed must be >= 0, got {seed}")
     refs = read_references(list(bags), names, plant.dt)
-    problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower)
+    classes = _reference_classes(names, refs, reference_class, model_classes, bags)
+    problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
+                                    reference_class=classes)
     results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
     return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
-                        int(reference_method), bags)
+                        int(reference_method), bags, k_min, weak, reference_class)
+
+
+def _reference_classes(names, refs, reference_class, model_classes, bags):
+    """``{joint: ReferenceClass or None}``; refuses a joint with neither references nor a class.
+
+    Appendix B: the reference error of this plant is not zero, so it is bounded over the
+    recorded references or over an explicit class (given, or recorded in the model that
+    ``reidentify`` starts from).
+    """
+    if reference_class is not None and not isinstance(reference_class, ReferenceClass):
+        reference_class = ReferenceClass.parse(reference_class)
+    out = {}
+    for n in names:
+        rc = reference_class
+        if rc is None and not any(len(r) for r in refs.get(n, ())) and model_classes.get(n):
+            rc = ReferenceClass.from_dict(model_classes[n])
+        if rc is None and not any(len(r) for r in refs.get(n, ())):
+            where = ", ".join(str(b) for b in bags)
+            what = (f"no {REFERENCE_TOPIC} topic" if not refs else f"no {REFERENCE_TOPIC} samples of joint {n}")
+            raise ReachsetError(f"{where}: {what}; record the references or give --reference-class "
+                                "qdd_max=F[,step_max=F] (the reference error is not zero on this plant, Appendix B)")
+        out[n] = rc
+    return out

@@ -5,8 +5,10 @@ The Theorem-1 constraints (paper Sec. III-B) depend only on the data (test cases
 joint (:func:`reachset_ros.conformance.deviation_extremes`) and reduced to a handful of
 non-redundant rows ``G alpha >= h`` (:class:`AlphaPolytope`; centres fixed at 0 as in the
 paper's Appendix A). :class:`JointProblem` holds them with everything else about one joint that
-does not depend on the controller parameters (``U_p``, ``U_ff``, the references and the
-reference-error method); :func:`problems_from_series` builds one per joint.
+does not depend on the controller parameters (``U_p``, ``U_ff``, the references or the reference
+class and the reference-error method); :func:`problems_from_series` builds one per joint. A
+problem needs recorded references or a :class:`ReferenceClass`: the reference error of
+Appendix B is never taken as zero.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ from scipy.optimize import linprog
 
 from .. import conformance as cf
 from ..errors import InfeasibleError, ReachsetError
-from .reference_error import ReferenceMethod, reference_windows
+from .reference_error import (ReferenceClass, ReferenceMethod, class_reference_error, reference_error,
+                              reference_windows)
 
 
 # ====================================================================== Theorem-1 constraints on alpha
@@ -83,7 +86,9 @@ class AlphaPolytope:
         c = np.asarray(c, float)
         na = self.G.shape[1]
         if len(self.h):
-            s = 1.0 / np.maximum((self.G / self.h[:, None]).max(axis=0), 1e-300)
+            colmax = (self.G / self.h[:, None]).max(axis=0)
+            # a column no row constrains (k* below the plant's minimum horizon) keeps scale 1
+            s = np.where(colmax > 0, 1.0 / np.where(colmax > 0, colmax, 1.0), 1.0)
         else:
             s = np.ones(na)
         s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
@@ -135,17 +140,23 @@ class JointProblem:
     alpha_lower: np.ndarray = None
     stamps: np.ndarray = None
     ref_windows: tuple = ()
+    reference_class: ReferenceClass = None
 
     @classmethod
     def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0,
                 thm=None, references=(), reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None,
-                stamps=None):
+                stamps=None, reference_class=None):
         """Deviation extremes (one sweep over all test cases) and the reduced Theorem-1 rows.
+
+        ``references`` (recorded) or ``reference_class`` is required (Appendix B). With a
+        class, its sound bound (:func:`class_reference_error`) is used and the recorded
+        references, if any, must lie in it.
 
         Raises
         ------
         ReachsetError
-            On bad limits, too little data, or references faster than ``U_ff``.
+            On bad limits, too little data, neither references nor a reference class, references
+            outside the class, or references (or a class) faster than ``U_ff``.
         """
         if not (math.isfinite(u_max) and u_max > 0):
             raise ReachsetError(f"joint {name}: u_max must be positive, got {u_max}")
@@ -159,30 +170,63 @@ class JointProblem:
         if qmax > u_ff * (1 + 1e-12):
             raise ReachsetError(f"joint {name}: the references in the bags reach |qdd_d| = {qmax:.4g} rad/s^2, "
                                 f"outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
+        if reference_class is not None:
+            if not isinstance(reference_class, ReferenceClass):
+                raise ReachsetError(f"joint {name}: reference_class must be a ReferenceClass")
+            if reference_class.qdd_max > u_ff * (1 + 1e-12):
+                raise ReachsetError(f"joint {name}: the reference class allows |qdd_d| <= {reference_class.qdd_max:g} "
+                                    f"rad/s^2, outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
+            for r in refs:
+                why = reference_class.violation(r, plant.dt)
+                if why:
+                    raise ReachsetError(f"joint {name}: a recorded reference is not in the reference class "
+                                        f"{reference_class.spec}: {why}")
+        elif not any(len(r) for r in refs):
+            raise ReachsetError(f"joint {name}: no references and no reference class: the reference error "
+                                "(Appendix B) cannot be bounded; record the references or give a reference class")
         thm = thm or cf.Theorem1.build(plant, horizon)
         try:
             devs = cf.deviation_extremes(plant, estimator, y, u, segments, horizon, thm)
             poly = AlphaPolytope.build(plant, thm, devs, horizon, alpha_lower)
         except ReachsetError as e:
             raise type(e)(f"joint {name}: {e}") from None
-        windows = reference_windows(refs) if (refs and reference_method == ReferenceMethod.REFERENCE_SET) else ()
+        windows = (reference_windows(refs) if (refs and reference_class is None
+                                               and reference_method == ReferenceMethod.REFERENCE_SET) else ())
         return cls(name, plant, estimator, thm, devs, horizon, poly, float(u_max), float(u_ff),
                    cf.as_2d(y), cf.as_2d(u), tuple(segments), refs, reference_method,
-                   poly.lower, stamps, windows)
+                   poly.lower, stamps, windows, reference_class)
 
     @property
     def test_cases(self):
         return self.devs.test_cases
 
+    def reference_sets(self, observer, controller, references=None):
+        """``Y_e,ref`` and ``U_e,ff`` (Appendix B) of this joint's loop with ``observer``, ``controller``.
+
+        The reference class's sound bound when the problem has one; otherwise the enclosure over
+        ``references`` (default: the recorded ones, ``exact``; the search passes windows).
+
+        Returns
+        -------
+        ReferenceErrorSets
+        """
+        if self.reference_class is not None:
+            return class_reference_error(self.plant, observer, controller, self.reference_class)
+        refs = self.references if references is None else tuple(references)
+        return reference_error(self.plant, observer, controller, refs, exact=refs is self.references)
+
 
 def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, references=None,
-                         reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None, thm=None):
-    """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict."""
+                         reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None, thm=None,
+                         reference_class=None):
+    """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict;
+    ``reference_class``: a :class:`ReferenceClass` for all joints, a dict per joint, or None."""
     thm = thm or cf.Theorem1.build(plant, horizon)
     out = []
     for name, s in series.items():
         um = u_max[name] if isinstance(u_max, dict) else u_max
         refs = (references or {}).get(name, ())
+        rc = reference_class.get(name) if isinstance(reference_class, dict) else reference_class
         out.append(JointProblem.prepare(name, plant, estimator, s.y, s.u, s.segments, horizon, um, u_ff,
-                                        thm, refs, reference_method, alpha_lower, s.stamps))
+                                        thm, refs, reference_method, alpha_lower, s.stamps, rc))
     return out

@@ -12,19 +12,25 @@ Appendix B's three ways to account for it (:class:`ReferenceMethod`): method 3 (
 encloses ``y_e,ref`` and ``u_e,ff`` of the nominal closed loop driven by every reference found
 in the bags in boxes and adds them to ``R_e`` and ``R_u`` inside the optimisation; method 2
 optimises ``R_e``/``R_u`` alone and checks ``R_u (+) u_e,ff`` for the recorded references
-afterwards; method 1 assumes the controller tracks ``y_cl,ref`` (no ``u_e,ff``). Without a
-``/reference`` topic the reference error is taken as zero: the feedforward ``u_ff = qdd_d``
-through the double integrator reproduces the reference exactly (App. B).
+afterwards; method 1 assumes the controller tracks ``y_cl,ref`` (no ``u_e,ff``).
+
+The reference error is never taken as zero: this plant has one-sample input and output delays
+and the observer lags, so the feedforward ``u_ff = qdd_d`` does not reproduce the reference.
+Without recorded references the sets come from an explicit :class:`ReferenceClass` (bounds on
+``qdd_d`` and on its variation per tick): :func:`class_reference_error` gives a *sound* box
+over every reference of the class (an l1 impulse-response bound with a proven tail,
+:func:`reachset_ros.sets.reachability.radius_coefficients`), used by all three methods.
 """
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ReachsetError
-from ..sets.reachability import reachable_subspace
+from ..sets.reachability import NotStableError, radius_coefficients, reachable_subspace
 
 
 class ReferenceMethod(enum.IntEnum):
@@ -282,10 +288,6 @@ class ReferenceErrorSets:
                 "qdd_max": float(self.qdd_max), "ticks": int(self.ticks), "stretches": int(self.stretches)}
 
 
-def zero_reference_error(n=2):
-    return ReferenceErrorSets(np.zeros(n), np.zeros(n), 0.0, 0.0, 0.0, 0, 0)
-
-
 def _reference_inputs(names, q, qd, qdd):
     return np.hstack([np.asarray(qdd, float)[:, None], reference_state(names, q, qd, qdd)])
 
@@ -386,7 +388,8 @@ def reference_error(plant, observer, controller, references, errors=("q", "qd"),
     ReferenceErrorSets
     """
     if not references:
-        return zero_reference_error(len(errors))
+        raise ReachsetError("no references to bound the reference error with (record /reference or "
+                            "give a reference class)")
     io = loop_io(plant, observer, controller)
     sel = [io.estimate_names.index(nm) for nm in errors]
     cols = io.inputs("u_ff", "x_ref")
@@ -417,6 +420,244 @@ def reference_error(plant, observer, controller, references, errors=("q", "qd"),
         qmax = max(qmax, float(np.abs(ref.qdd).max()))
         ticks += len(ref)
     if ticks == 0:
-        return zero_reference_error(ne)
+        raise ReachsetError("the references have no samples (record /reference or give a reference class)")
     return ReferenceErrorSets(lo[1:], hi[1:], float(lo[0]), float(hi[0]), qmax, ticks, len(references),
                           tuple(arg_lo[1:] + arg_hi[1:] + [arg_lo[0], arg_hi[0]]), exact)
+
+
+# ====================================================================== a class of references
+#: Relative allowance added to :func:`class_reference_error`'s bound for the round-off of the
+#: steady-state solves that build the error system (their residuals are checked <= 1e-8).
+CLASS_ROUNDOFF = 1e-6
+#: Scale of the stopping-reference column in :func:`class_reference_error` (see there).
+STOP_SCALE = 1e4
+
+
+@dataclass(frozen=True)
+class ReferenceClass:
+    """A class of references: every reference the generator may send (Appendix B without recordings).
+
+    The references are the samples ``q_d[k] = q_d(t_k)``, ``qd_d[k]``, ``qdd_d[k]`` of a
+    trajectory whose acceleration obeys ``|qdd_d(t)| <= qdd_max`` and varies by at most
+    ``step_max`` within each tick: ``|qdd_d(t) - qdd_d(t_k)| <= step_max`` on
+    ``[t_k, t_k+1]`` (the next sample included). Piecewise-constant (trapezoidal) profiles
+    switching anywhere inside a tick are in it with ``step_max`` their largest jump; references
+    that are exact zero-order-hold integrals of ``qdd_d`` too. ``step_max`` defaults to
+    ``2 qdd_max``, which the level bound already implies (no extra assumption). Position and
+    velocity need no bound: the closed loop follows ramps without error (checked by
+    :func:`class_reference_error`).
+
+    Parameters
+    ----------
+    qdd_max : float
+        Bound of ``|qdd_d|``, rad/s^2 (must lie in ``U_ff``).
+    step_max : float, optional
+        Bound of the variation of ``qdd_d`` within one tick, rad/s^2.
+    """
+
+    qdd_max: float
+    step_max: float = None
+
+    def __post_init__(self):
+        a = float(self.qdd_max)
+        s = 2.0 * a if self.step_max is None else float(self.step_max)
+        if not (math.isfinite(a) and a >= 0):
+            raise ReachsetError(f"reference class: qdd_max must be a non-negative finite number, got {self.qdd_max}")
+        if not (math.isfinite(s) and s >= 0):
+            raise ReachsetError(f"reference class: step_max must be a non-negative finite number, got {self.step_max}")
+        object.__setattr__(self, "qdd_max", a)
+        object.__setattr__(self, "step_max", s)
+
+    @classmethod
+    def parse(cls, text):
+        """``"qdd_max=F[,step_max=F]"`` (the ``--reference-class`` syntax)."""
+        vals = {}
+        for item in str(text).split(","):
+            if not item.strip():
+                continue
+            k, sep, v = item.partition("=")
+            k = k.strip()
+            if not sep or k not in ("qdd_max", "step_max"):
+                raise ReachsetError(f"--reference-class: expected qdd_max=F[,step_max=F], got {text!r}")
+            try:
+                vals[k] = float(v)
+            except ValueError:
+                raise ReachsetError(f"--reference-class: {k}={v.strip()!r} is not a number") from None
+        if "qdd_max" not in vals:
+            raise ReachsetError(f"--reference-class: qdd_max is required (qdd_max=F[,step_max=F]), got {text!r}")
+        return cls(vals["qdd_max"], vals.get("step_max"))
+
+    @classmethod
+    def from_dict(cls, d):
+        """Inverse of :meth:`as_dict` (a model file's synthesis record)."""
+        try:
+            return cls(d["qdd_max"], d.get("step_max"))
+        except (KeyError, TypeError, AttributeError):
+            raise ReachsetError(f"reference class: expected {{qdd_max, step_max}}, got {d!r}") from None
+
+    @property
+    def spec(self):
+        """The ``--reference-class`` text of this class."""
+        return f"qdd_max={self.qdd_max:g},step_max={self.step_max:g}"
+
+    def as_dict(self):
+        return {"qdd_max": self.qdd_max, "step_max": self.step_max}
+
+    def describe(self):
+        return (f"|qdd_d| <= {self.qdd_max:g} rad/s^2, varying by <= {self.step_max:g} rad/s^2 within a tick "
+                "(sound bound, Appendix B)")
+
+    def violation(self, ref, dt):
+        """Why the recorded :class:`Reference` ``ref`` is not in the class, or ``None``.
+
+        Checks the samples ``|qdd_d| <= qdd_max``, ``|qdd_d[k+1] - qdd_d[k]| <= step_max`` and
+        the tick means the class implies, ``(qd_d[k+1] - qd_d[k]) / dt`` and
+        ``2 (q_d[k+1] - q_d[k] - dt qd_d[k]) / dt^2``: within ``qdd_max`` and within
+        ``step_max`` of ``qdd_d[k]`` (relative tolerance 1e-6 for the recording's rounding).
+        """
+        a, s = self.qdd_max, self.step_max
+        tol = 1e-6 * max(a, s, 1e-3)
+        q, qd, qdd = (np.asarray(x, float) for x in (ref.q, ref.qd, ref.qdd))
+        if len(qdd) == 0:
+            return None
+        checks = [("|qdd_d|", np.abs(qdd), a)]
+        if len(qdd) > 1:
+            av = np.diff(qd) / dt
+            ap = 2.0 * (np.diff(q) - dt * qd[:-1]) / (dt * dt)
+            checks += [("the step of qdd_d per tick", np.abs(np.diff(qdd)), s),
+                       ("the tick mean of qdd_d (from qd_d)", np.abs(av), a),
+                       ("the tick mean of qdd_d (from q_d)", np.abs(ap), a),
+                       ("the variation of qdd_d within a tick (from qd_d)", np.abs(av - qdd[:-1]), s),
+                       ("the variation of qdd_d within a tick (from q_d)", np.abs(ap - qdd[:-1]), s)]
+        for what, x, bound in checks:
+            k = int(np.argmax(x))
+            if x[k] > bound + tol:
+                return f"{what} reaches {x[k]:.4g} > {bound:g} at tick {k}"
+        return None
+
+
+def _reference_error_system(plant, observer, controller, errors=("q", "qd")):
+    """The LTI map from a class reference's innovations to ``[y_e,ref; u_e,ff]``.
+
+    A reference of :class:`ReferenceClass` evolves over one tick as
+    ``q_d[k+1] = q_d + dt qd_d + dt^2/2 (qdd_d[k] + dp[k])``, ``qd_d[k+1] = qd_d + dt (qdd_d[k] +
+    dv[k])`` with ``dv``, ``dp`` the (weighted) tick means of ``qdd_d(t) - qdd_d(t_k)``
+    (zero for zero-order-hold references). The loop state ``z`` (:class:`LoopIO`) minus its
+    ramp response ``M [q_d; qd_d]`` (``M F = A M + B R_g``, ``F`` the ramp's dynamics) gives
+    ``zeta``, driven by ``nu = [qdd_d, dv, dp]`` and its previous value (``q_prev``,
+    ``u_prev``). Because the loop follows ramps exactly (checked: ``C M + D R_g`` equals the
+    reference's own (q, qd) rows), the outputs ``x_hat_sel - x_ref_sel`` and ``u - u_ff``
+    depend on ``nu`` alone: ``X[k+1] = Ae X + Be nu``, ``out = Ce X + De nu``, ``X = [zeta;
+    nu[k-1]]``, outputs ``[errors..., u_e,ff]``.
+
+    Raises
+    ------
+    ReachsetError
+        If the loop does not follow ramp references without error (then position and velocity
+        bounds would be needed).
+    """
+    io = loop_io(plant, observer, controller)
+    dt = float(plant.dt)
+    names = io.estimate_names
+    cols = io.inputs("u_ff", "x_ref")
+    nc = len(cols)
+    Rg, Rn, Rp = np.zeros((nc, 2)), np.zeros((nc, 3)), np.zeros((nc, 3))
+    Rn[0, 0] = 1.0                                    # u_ff = qdd_d[k]
+    for i, nm in enumerate(names):
+        c = 1 + i
+        if nm == "q":
+            Rg[c] = [1.0, 0.0]
+        elif nm == "qd":
+            Rg[c] = [0.0, 1.0]
+        elif nm == "q_prev":                          # q_d[k-1] in terms of q_d[k], qd_d[k], nu[k-1]
+            Rg[c] = [1.0, -dt]
+            Rp[c] = [dt * dt / 2, dt * dt, -dt * dt / 2]
+        elif nm == "u_prev":
+            Rp[c] = [1.0, 0.0, 0.0]
+        elif nm != "d":
+            raise ReachsetError(f"no reference for the estimate {nm!r}")
+    A, B = io.A, io.B[:, cols]
+    solve = steady_state_solver(io, cols)
+    m_q = solve(B @ Rg[:, 0])
+    m_qd = solve(B @ Rg[:, 1] - dt * m_q)
+    M = np.column_stack([m_q, m_qd])
+    F = np.array([[1.0, dt], [0.0, 1.0]])
+    sel = [names.index(nm) for nm in errors]
+    p, m = io.p, io.m
+    rows = [p + m + i for i in sel] + [p]
+    C, D = io.C[rows], io.D[np.ix_(rows, cols)]
+    E = np.zeros((len(rows), 2))
+    for j, i in enumerate(sel):
+        E[j] = Rg[1 + i]
+    res_m = np.abs(M @ F - A @ M - B @ Rg).max()
+    res_y = np.abs(C @ M + D @ Rg - E).max()
+    scale = max(1.0, float(np.abs(M).max()), float(np.abs(C @ M).max()))
+    if not (res_m <= 1e-8 * scale and res_y <= 1e-8 * scale):
+        raise ReachsetError(f"reference class: this closed loop does not follow ramp references without error "
+                            f"(residual {max(res_m, res_y):.3g}); bound the reference error with recorded references")
+    n = A.shape[0]
+    Gn = np.array([[dt * dt / 2, 0.0, dt * dt / 2], [dt, dt, 0.0]])
+    Ae = np.block([[A, B @ Rp], [np.zeros((3, n)), np.zeros((3, 3))]])
+    Be = np.vstack([B @ Rn - M @ Gn, np.eye(3)])
+    Ce = np.hstack([C, D @ Rp])
+    De = D @ Rn
+    De[-1, 0] -= 1.0                                  # u_e,ff = u - u_ff
+    return Ae, Be, Ce, De
+
+
+def class_reference_error(plant, observer, controller, reference_class, errors=("q", "qd")):
+    """Sound boxes ``Y_e,ref`` and ``U_e,ff`` over every reference of a :class:`ReferenceClass`.
+
+    Paper Appendix B (the sets of method 3, the reference error of methods 1-2) for a class
+    instead of recorded references. With the error system of :func:`_reference_error_system`
+    (impulse responses ``h_0`` of ``qdd_d``, ``h_v``, ``h_p`` of the within-tick terms
+    ``dv``, ``dp``; ``|qdd_d| <= a``, steps ``<= s``, ``|dv|, |dp| <= min(s, 2a)``), each
+    output ``r`` obeys, for every reference of the class and any past,
+    ``|out_r| <= min(B1, B2, B3)`` with
+
+    * ``B1 = ||h_0||_1 a + (||h_v||_1 + ||h_p||_1) min(s, 2a)``;
+    * ``B2 = |G| a + sum_{j>=1} |S_j| s + (||h_v||_1 + ||h_p||_1) min(s, 2a)`` (summation by
+      parts: ``out = G qdd_d[k] + sum_{j>=1} S_j (qdd_d[k-j] - qdd_d[k-j+1])``, ``G`` the DC
+      gain, ``S_j = sum_{i>=j} h_0,i`` the tail sums);
+    * ``B3 = ||h_0 - h_v - h_p||_1 a + (||h_v||_1 + ||h_p||_1) a`` (in terms of the sample
+      and the two tick means of ``qdd_d``, each bounded by ``a``).
+
+    Every l1 norm is an infinite sum bounded by
+    :func:`~reachset_ros.sets.reachability.radius_coefficients` (truncated sum plus a proven
+    geometric tail bound on the stable part); the result is widened by
+    :data:`CLASS_ROUNDOFF` (relative) for the round-off of the steady-state solves. It is an
+    outer bound: the channels are bounded independently although they are coupled. The
+    boxes are symmetric (the class is).
+
+    Returns
+    -------
+    ReferenceErrorSets
+        ``ticks = stretches = 0`` (no recording), ``qdd_max`` the class's.
+    """
+    rc = reference_class
+    Ae, Be, Ce, De = _reference_error_system(plant, observer, controller, errors)
+    a, s = rc.qdd_max, rc.step_max
+    sd = min(s, 2.0 * a)
+    # on the reachable subspace of the three channels (the plant's constant-disturbance mode,
+    # eigenvalue 1, is not reachable from references and stays out of the DC-gain solve)
+    V = reachable_subspace(Ae, Be)
+    Ar, Er, Cr = V.T @ Ae @ V, V.T @ Be, Ce @ V
+    if max(abs(np.linalg.eigvals(Ar)), default=0.0) >= 1.0:
+        raise NotStableError("reference class: the closed loop is not stable")
+    bt = np.linalg.solve(np.eye(V.shape[1]) - Ar, Er[:, 0])   # sum_i Ar^i b_0
+    G = De[:, 0] + Cr @ bt                                      # DC gain of qdd_d
+    # one call for all channels: [h_0, h_v, h_p, tail sums S_j (j >= 1), h_0 - h_v - h_p], and a
+    # copy of h_0 scaled by STOP_SCALE: radius_coefficients stops once every tail is below
+    # eps (1e-6 of the row's largest entry + the entry), which a response that is ~0 in a row
+    # (e.g. dp on qd_e) never meets within its rounding floor; the copy sets that floor's
+    # scale. The bounds returned include their tails whatever the stopping point (sound).
+    E = np.column_stack([Er, bt, Er[:, 0] - Er[:, 1] - Er[:, 2], STOP_SCALE * Er[:, 0]])
+    Dw = np.column_stack([De, np.zeros(len(De)), De[:, 0] - De[:, 1] - De[:, 2], np.zeros(len(De))])
+    K, _ = radius_coefficients(Ar, E, np.zeros((V.shape[1], 0)), Cr, Dw=Dw)
+    K0, Kd, Kt, K3 = K[:, 0], K[:, 1] + K[:, 2], K[:, 3], K[:, 4]
+    b1 = K0 * a + Kd * sd
+    b2 = np.abs(G) * a + Kt * s + Kd * sd
+    bnd3 = K3 * a + Kd * a
+    bound = np.minimum(np.minimum(b1, b2), bnd3) * (1.0 + CLASS_ROUNDOFF)
+    e, u = bound[:-1], float(bound[-1])
+    return ReferenceErrorSets(-e, e.copy(), -u, u, a, 0, 0)

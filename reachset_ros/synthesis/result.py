@@ -15,9 +15,11 @@ import numpy as np
 from .. import conformance as cf
 from ..bags.messages import REFERENCE_TOPIC
 from ..errors import InfeasibleError
+from ..sets.reachability import NotStableError
 from ..systems.closedloop import analyze, close_loop
+from ..systems.gains import Gains
 from .config import PARAMS
-from .reference_error import ReferenceMethod, reference_error, zero_reference_error
+from .reference_error import ReferenceMethod
 
 
 # ====================================================================== results
@@ -63,13 +65,11 @@ class JointResult:
         return bool(-self.u_max <= self.ru[0] and self.ru[1] <= self.u_max)
 
     def gains(self):
-        """The model file's ``gains`` entry (also what the controller/observer nodes read)."""
-        g = {"observer": self.observer, "controller": self.controller}
-        for n in PARAMS[self.observer]:
-            g[n] = float(self.params[n])
-        g["eps"] = float(self.params["eps"])
-        if self.observer == "eso":
-            g["eso_input"] = self.eso_input
+        """The model file's ``gains`` entry (also what the controller/observer nodes read):
+        :meth:`reachset_ros.systems.gains.Gains.model_dict` plus the certified numbers."""
+        g = Gains(observer=self.observer, controller=self.controller, eso_input=self.eso_input,
+                  eps=float(self.params["eps"]),
+                  **{n: float(self.params[n]) for n in PARAMS[self.observer]}).model_dict()
         g.update(re_norm=float(self.re_norm), re_radius=[float(x) for x in self.re_radius],
                  ru=[float(self.ru[0]), float(self.ru[1])], u_max=float(self.u_max), u_ff=float(self.u_ff),
                  mode=self.mode,
@@ -110,25 +110,30 @@ def finalize(problem, space, values, alpha, mode, evaluations=0, t0=None, notes=
     an = analyze(cl, aw, av, u_ff=0.0)
     if not an.stable:
         raise InfeasibleError(f"joint {pb.name}: the chosen closed loop is not stable ({an.stability.message})")
-    ref_obj = None
     refd = {"method": int(pb.reference_method)}
-    if pb.references:
-        ref_obj = reference_error(pb.plant, obs, ctrl, pb.references)
-        refd.update(ref_obj.as_dict())
-        refd["source"] = f"{REFERENCE_TOPIC} ({ref_obj.ticks} ticks in {ref_obj.stretches} stretches)"
+    try:                                          # Appendix B: recorded references or the class
+        ref_obj = pb.reference_sets(obs, ctrl)
+    except NotStableError as e:
+        raise InfeasibleError(f"joint {pb.name}: the reference error cannot be bounded for this loop "
+                              f"({str(e).splitlines()[0]})") from None
+    refd.update(ref_obj.as_dict())
+    rc = pb.reference_class
+    if rc is not None:
+        refd["reference_class"] = rc.as_dict()
+        ticks = sum(len(r) for r in pb.references)
+        refd["source"] = (f"reference class {rc.spec}: {rc.describe()}"
+                          + (f"; the recorded {REFERENCE_TOPIC} ({ticks} ticks) lies in it" if ticks else ""))
     else:
-        refd.update(zero_reference_error().as_dict())
-        refd["source"] = (f"none: no {REFERENCE_TOPIC} in the bags; taken as zero (Appendix B: the "
-                          "feedforward qdd_d through the double integrator reproduces the reference)")
+        refd["source"] = f"{REFERENCE_TOPIC} ({ref_obj.ticks} ticks in {ref_obj.stretches} stretches)"
     r_u = float(an.ru[1])
     re_rad = np.asarray(an.re_radius, float)
     center = np.zeros_like(re_rad)
     lo_u, hi_u = -r_u - pb.u_ff, r_u + pb.u_ff
-    if pb.reference_method == ReferenceMethod.REFERENCE_SET and ref_obj is not None:
+    if pb.reference_method == ReferenceMethod.REFERENCE_SET:
         re_rad = re_rad + 0.5 * (ref_obj.e_hi - ref_obj.e_lo)
         center = 0.5 * (ref_obj.e_hi + ref_obj.e_lo)
         lo_u, hi_u = lo_u + ref_obj.u_lo, hi_u + ref_obj.u_hi
-    elif pb.reference_method == ReferenceMethod.PRECOMPUTED and ref_obj is not None:
+    elif pb.reference_method == ReferenceMethod.PRECOMPUTED:
         star = (lo_u + ref_obj.u_lo, hi_u + ref_obj.u_hi)
         refd["ru_star"] = [float(star[0]), float(star[1])]
         refd["ru_star_inside_up"] = bool(-pb.u_max <= star[0] and star[1] <= pb.u_max)

@@ -120,9 +120,11 @@ class Evaluator:
             rho = stability(cl).spectral_radius
             return LoopData(False, 2 * PENALTY + min(rho, 1e3), str(e).splitlines()[0])
         ref = None
-        if pb.reference_method == ReferenceMethod.REFERENCE_SET and self.references:
-            ref = reference_error(pb.plant, obs, ctrl, self.references,
-                                  exact=self.references is pb.references)
+        if pb.reference_method == ReferenceMethod.REFERENCE_SET:
+            try:                               # a reference class takes precedence
+                ref = pb.reference_sets(obs, ctrl, self.references)
+            except NotStableError as e:        # its bound did not converge: not certifiable here
+                return LoopData(False, 2 * PENALTY + 1.0, "reference class: " + str(e).splitlines()[0])
             if self.ref_offset is not None and not ref.exact:
                 de_lo, de_hi, du_lo, du_hi = self.ref_offset
                 ref = replace(ref, e_lo=ref.e_lo + de_lo, e_hi=np.maximum(ref.e_hi + de_hi, ref.e_lo + de_lo),
@@ -231,7 +233,8 @@ def optimise(pb, space, alpha, seeds, search, seed, loops=None, rounds=3, tol=0.
     """
     loops = {} if loops is None else loops
     rho = _max_rho(search)
-    exact_refs = pb.reference_method == ReferenceMethod.REFERENCE_SET and bool(pb.references)
+    exact_refs = (pb.reference_method == ReferenceMethod.REFERENCE_SET and bool(pb.references)
+                  and pb.reference_class is None)
     windows = pb.ref_windows if exact_refs else None
     first_seeds = list(seeds)
     seeds = list(seeds)

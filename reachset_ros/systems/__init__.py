@@ -11,14 +11,16 @@ numpy/scipy:
   (paper eqs. ``staticfeedback``, ``feedbackLaw``), LQR and the LQG baseline;
 * :mod:`~reachset_ros.systems.closedloop` - the composed error system
   (:func:`close_loop`), its stability, and the reachable tracking error ``R_e`` and input
-  ``R_u`` (:func:`analyze`, paper Sec. III-A); tick-by-tick simulation;
+  ``R_u`` (:func:`analyze`, paper Sec. III-A); the control law as deployed
+  (:class:`FeedbackLaw`), tick-by-tick simulation, the settling time of a transient;
 * :mod:`~reachset_ros.systems.gains` - :class:`Gains`, the one type for a joint's observer
-  and controller parameters (ROS parameters, model file), and :func:`check_gains`.
+  and controller parameters (synthesis, model file, ROS parameters), and :func:`check_gains`.
 
 May import: :mod:`reachset_ros.sets` and :mod:`reachset_ros.errors` only.
 """
-from .closedloop import (Analysis, ClosedLoop, Stability, analyze, center_coefficients, close_loop,
-                         closed_loop_tick, radius_coefficients, simulate, simulate_ticks, stability)
+from .closedloop import (SETTLING_TOLERANCE, Analysis, ClosedLoop, FeedbackLaw, Stability, analyze,
+                         center_coefficients, close_loop, closed_loop_tick, radius_coefficients, settling_ticks,
+                         settling_time, simulate, simulate_ticks, stability)
 from .controllers import (LinearController, compensated_feedback, control_input, lqg, lqr, lqr_gain,
                           static_feedback)
 from .gains import DEFAULTS, Gains, check_gains
@@ -34,6 +36,6 @@ __all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
            "LinearController", "static_feedback", "compensated_feedback", "lqr_gain", "lqr",
            "lqg", "control_input",
            "ClosedLoop", "close_loop", "Stability", "stability", "Analysis", "analyze",
-           "radius_coefficients", "center_coefficients", "closed_loop_tick", "simulate",
-           "simulate_ticks",
+           "radius_coefficients", "center_coefficients", "FeedbackLaw", "closed_loop_tick", "simulate",
+           "simulate_ticks", "SETTLING_TOLERANCE", "settling_ticks", "settling_time",
            "Gains", "check_gains", "DEFAULTS"]

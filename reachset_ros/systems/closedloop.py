@@ -30,8 +30,8 @@ from ..sets import reachability as reach
 from ..sets.zonotope import Zonotope
 
 __all__ = ["ClosedLoop", "close_loop", "Stability", "stability", "Analysis", "analyze",
-           "radius_coefficients", "center_coefficients", "closed_loop_tick", "simulate",
-           "simulate_ticks"]
+           "radius_coefficients", "center_coefficients", "FeedbackLaw", "closed_loop_tick", "simulate",
+           "simulate_ticks", "SETTLING_TOLERANCE", "settling_ticks", "settling_time"]
 
 
 def _ro(a):
@@ -385,11 +385,66 @@ def analyze(cl, alpha_w, alpha_v, u_ff=0.0, c_w=None, c_v=None, eps=reach.EPS, s
 
 
 # ---------------------------------------------------------------------- simulation
+@dataclass(frozen=True, eq=False)
+class FeedbackLaw:
+    """The control law of one loop, as certified and as deployed (paper eqs. 5-7).
+
+    ``u = u_ff + K (x_ref - x_hat)`` with ``x_hat = x0 + Do_u u``, where
+    ``x0 = Co xo + Do_y y`` is the observer's estimate without the current input's
+    feedthrough (:meth:`~reachset_ros.systems.observers.ObserverState.partial_estimate`, what
+    the observer node publishes). With ``Do_u != 0`` (the ESO fed u_p[k]) this is an
+    algebraic loop, solved exactly: ``(I + K Do_u) u = u_ff + K (x_ref - x0)``; the same
+    solution :func:`close_loop` builds into the certified matrices (``Fz``, ``Fv``).
+
+    :func:`closed_loop_tick` (the simulation of the certified loop tick by tick) and
+    ``controller_node`` both call :meth:`__call__`: there is no second copy of the law.
+
+    Build with :meth:`of`.
+    """
+
+    K: np.ndarray
+    Do_u: np.ndarray
+    estimate_names: tuple
+
+    @classmethod
+    def of(cls, controller, observer):
+        """The law of ``controller`` acting on the estimates of ``observer``."""
+        return cls(controller.gain_for(observer.estimate_names), observer.Do_u, tuple(observer.estimate_names))
+
+    def __call__(self, x0, x_ref=None, u_ff=0.0):
+        """Plant input and full estimate for the partial estimate ``x0``.
+
+        Parameters
+        ----------
+        x0 : array_like, (ne,)
+            ``Co xo + Do_y y``, ordered as ``estimate_names``.
+        x_ref : array_like, (ne,), optional
+            Reference in the same coordinates (zero for estimates without one, e.g. ``d``).
+        u_ff : float or array_like
+            Feedforward (``qdd_d``).
+
+        Returns
+        -------
+        u : ndarray, (m,)
+        x_hat : ndarray, (ne,)
+        """
+        x0 = np.atleast_1d(np.asarray(x0, float))
+        K = self.K
+        e = -x0 if x_ref is None else np.asarray(x_ref, float) - x0
+        rhs = np.atleast_1d(np.asarray(u_ff, float)) + K @ e
+        if np.any(self.Do_u):
+            u = np.linalg.solve(np.eye(K.shape[0]) + K @ self.Do_u, rhs)
+        else:
+            u = rhs
+        return u, x0 + self.Do_u @ u
+
+
 def closed_loop_tick(observer_state, controller, y, x_ref=None, u_ff=0.0):
     """One controller/observer tick with the algebraic loop solved exactly.
 
     ``x_hat = x0 + Do_u u`` with ``x0 = Co xo + Do_y y``, and
-    ``u = u_ff + K (x_ref - x_hat)``, so ``(I + K Do_u) u = u_ff + K (x_ref - x0)``.
+    ``u = u_ff + K (x_ref - x_hat)``, so ``(I + K Do_u) u = u_ff + K (x_ref - x0)``
+    (:class:`FeedbackLaw`, the law the controller node runs).
 
     Parameters
     ----------
@@ -409,17 +464,57 @@ def closed_loop_tick(observer_state, controller, y, x_ref=None, u_ff=0.0):
         Estimate ``x_hat[k]``.
     next_state : ObserverState
     """
-    obs = observer_state.observer
-    K = controller.gain_for(obs.estimate_names)
     y = np.atleast_1d(np.asarray(y, float))
-    x0 = observer_state.partial_estimate(y)
-    e = -x0 if x_ref is None else np.asarray(x_ref, float) - x0
-    rhs = np.atleast_1d(np.asarray(u_ff, float)) + K @ e
-    if np.any(obs.Do_u):
-        u = np.linalg.solve(np.eye(K.shape[0]) + K @ obs.Do_u, rhs)
-    else:
-        u = rhs
-    return u, x0 + obs.Do_u @ u, observer_state.advance(y, u)
+    u, x_hat = FeedbackLaw.of(controller, observer_state.observer)(observer_state.partial_estimate(y), x_ref, u_ff)
+    return u, x_hat, observer_state.advance(y, u)
+
+
+#: relative size to which the slowest mode of a transient has decayed when it counts as settled
+SETTLING_TOLERANCE = 1e-3
+
+
+def settling_ticks(spectral_radius, tol=SETTLING_TOLERANCE, initial=1.0):
+    """Ticks after which a transient has decayed: the smallest ``k`` with ``initial rho^k <= tol``.
+
+    ``R_e`` and ``R_u`` (paper Sec. III-A) are the reachable sets from zero initial error;
+    after a start, a gain change or the end of braking the error starts elsewhere and
+    decays like ``rho^k`` (``rho`` the closed loop's spectral radius, :func:`stability`), so
+    the standard settling time ``k = ceil(ln(tol / initial) / ln(rho))`` is the window
+    during which the tracking error is not claimed to lie in ``R*_e``. It is the asymptotic
+    rate: a strongly non-normal ``A`` can take longer by the factor of its transient growth.
+
+    Parameters
+    ----------
+    spectral_radius : float
+        In [0, 1); a closed loop that is not stable never settles (ValueError).
+    tol : float
+        Size of the transient at which it counts as settled, in the units of ``initial``.
+    initial : float
+        Size (bound) of the initial error; default 1 makes ``tol`` relative.
+
+    Returns
+    -------
+    int
+    """
+    rho, tol, initial = float(spectral_radius), float(tol), float(initial)
+    if not (0.0 <= rho < 1.0):
+        raise ValueError(f"a closed loop with spectral radius {rho:.6g} does not settle (needs < 1)")
+    if not (tol > 0 and np.isfinite(tol)) or not (initial >= 0 and np.isfinite(initial)):
+        raise ValueError(f"settling tolerance must be > 0 and the initial error finite, got {tol}, {initial}")
+    if initial <= tol:
+        return 0
+    if rho == 0.0:
+        return 1
+    k = max(int(np.ceil(np.log(tol / initial) / np.log(rho))), 1)
+    while initial * rho ** k > tol:   # the rounding of the logarithms, outward
+        k += 1
+    return k
+
+
+def settling_time(cl, tol=SETTLING_TOLERANCE, initial=1.0):
+    """:func:`settling_ticks` of the closed loop ``cl`` (its spectral radius on the
+    reachable subspace, :func:`stability`), in ticks."""
+    return settling_ticks(stability(cl).spectral_radius, tol, initial)
 
 
 def simulate(cl, w, v, z0=None):

@@ -1,14 +1,21 @@
 """Controller and observer gains of one joint as a value, and their safety check.
 
-The nodes receive gains through ROS parameters, the synthesis writes them into the model
-file (``JointSets.gains``); both go through :class:`Gains`, which builds the observer and
-controller of the core and checks a proposed set of gains against the identified sets:
-the closed loop must be stable and its reachable input R_u must stay inside U_p.
+:class:`Gains` is the one representation of a joint's loop structure and parameters: the
+synthesis searches over it (:class:`reachset_ros.synthesis.config.SearchSpace` builds its
+loops through it and writes :meth:`Gains.model_dict` into the model file,
+``JointSets.gains``), the model file is read back with :meth:`Gains.from_model`, and the
+observer and controller nodes build their observer and control law from it
+(:meth:`Gains.build`). So the loop that was certified is the loop that runs, including
+which plant input the ESO is fed (``eso_input``). :func:`check_gains` checks a proposed set
+of gains against the identified sets: the closed loop must be stable and its reachable
+input R_u must stay inside U_p.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+
+import numpy as np
 
 from . import closedloop
 from .controllers import compensated_feedback, static_feedback
@@ -16,15 +23,28 @@ from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 
-__all__ = ["Gains", "check_gains", "DEFAULTS"]
+__all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff",
+           "certified_inflation", "model_limits",
+           "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS"]
 
 DEFAULTS = dict(observer="hg", controller="static", omega=10.0, zeta=1.0, h1=15.0, h2=30.0,
-                l1=57.1, l2=103.3, l3=18.1, eps=0.01)
+                l1=57.1, l2=103.3, l3=18.1, eps=0.01, eso_input="previous")
+#: the numeric parameters of each observer family's loop (the controller adds omega, zeta)
+FAMILY_PARAMS = {"hg": ("omega", "zeta", "h1", "h2"), "eso": ("omega", "zeta", "l1", "l2", "l3")}
+#: which plant input the ESO is fed at tick k (:func:`~reachset_ros.systems.observers.extended_state_observer`)
+ESO_INPUTS = ("previous", "current")
+_NUMBERS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
+_WORDS = ("observer", "controller", "eso_input")
 
 
 @dataclass(frozen=True)
 class Gains:
-    """Observer and controller parameters of one joint (SI units: omega rad/s, eps s)."""
+    """Observer and controller parameters of one joint (SI units: omega rad/s, eps s).
+
+    ``eso_input`` is part of the loop: ``"previous"`` feeds the ESO u_p[k-1], ``"current"``
+    u_p[k] (an algebraic loop, solved by :class:`~reachset_ros.systems.closedloop.FeedbackLaw`);
+    the two give different closed loops and different R_e. It is ignored by the HG observer.
+    """
 
     observer: str = "hg"
     controller: str = "static"
@@ -36,6 +56,7 @@ class Gains:
     l2: float = 103.3
     l3: float = 18.1
     eps: float = 0.01
+    eso_input: str = "previous"
 
     def __post_init__(self):
         if self.observer not in ("hg", "eso"):
@@ -44,21 +65,62 @@ class Gains:
             raise ReachsetError(f"controller must be static or compensated, not {self.controller!r}")
         if self.controller == "compensated" and self.observer != "eso":
             raise ReachsetError("the compensated controller needs the ESO's disturbance estimate")
-        for k in ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps"):
+        if self.eso_input not in ESO_INPUTS:
+            raise ReachsetError(f"eso_input must be previous or current, not {self.eso_input!r}")
+        for k in _NUMBERS:
             v = getattr(self, k)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ReachsetError(f"gain {k} must be a positive finite number, got {v!r}")
 
     @classmethod
     def from_dict(cls, d):
+        """Gains from a mapping; missing keys take :data:`DEFAULTS`, unknown keys are ignored."""
         known = {k: d[k] for k in DEFAULTS if k in d}
         for k, v in known.items():
-            if k not in ("observer", "controller"):
+            if k in _WORDS:
+                known[k] = str(v)
+            else:
                 try:
                     known[k] = float(v)
                 except (TypeError, ValueError):
                     raise ReachsetError(f"gain {k} must be a number, got {v!r}") from None
         return cls(**known)
+
+    @classmethod
+    def from_model(cls, d):
+        """Gains from a model file's ``gains`` entry (written by :meth:`model_dict`).
+
+        Strict: the entry must name the observer and give every parameter of its family
+        (and ``eps``); ``controller`` defaults to the family's (static for hg, compensated for
+        eso), ``eso_input`` to ``"previous"`` (model files written before it was recorded).
+        Other keys (``re_norm``, ``ru``, ...) are ignored.
+        """
+        if not isinstance(d, dict) or "observer" not in d:
+            raise ReachsetError("gains must name the observer (hg or eso)")
+        obs = d["observer"]
+        if obs not in FAMILY_PARAMS:
+            raise ReachsetError(f"gains: unknown observer {obs!r}")
+        for n in FAMILY_PARAMS[obs]:
+            if n not in d:
+                raise ReachsetError(f"gains: missing {n} for the {obs} loop")
+        kw = {n: d[n] for n in FAMILY_PARAMS[obs] + ("eps",) if n in d}
+        try:
+            kw = {n: float(v) for n, v in kw.items()}
+        except (TypeError, ValueError):
+            raise ReachsetError("gains: parameter values must be numbers") from None
+        return cls(observer=obs, controller=str(d.get("controller", "static" if obs == "hg" else "compensated")),
+                   eso_input=str(d.get("eso_input", "previous")), **kw)
+
+    def model_dict(self):
+        """The model file's ``gains`` entry: observer, controller, the family's parameters,
+        ``eps`` and, for the ESO, ``eso_input`` (read back by :meth:`from_model`)."""
+        g = {"observer": self.observer, "controller": self.controller}
+        for n in FAMILY_PARAMS[self.observer]:
+            g[n] = float(getattr(self, n))
+        g["eps"] = float(self.eps)
+        if self.observer == "eso":
+            g["eso_input"] = self.eso_input
+        return g
 
     def as_dict(self):
         return asdict(self)
@@ -67,30 +129,151 @@ class Gains:
         return replace(self, **kw)
 
     def build_observer(self, dt=0.004):
+        """The observer these gains describe (HG or ESO fed the plant input ``eso_input``)."""
         if self.observer == "hg":
             return high_gain_observer(self.h1, self.h2, eps=self.eps, dt=dt)
-        return extended_state_observer(self.l1, self.l2, self.l3, eps=self.eps, dt=dt)
+        return extended_state_observer(self.l1, self.l2, self.l3, eps=self.eps, dt=dt, u_input=self.eso_input)
 
     def build_controller(self):
+        """The feedback law these gains describe (paper eqs. ``staticfeedback``, ``feedbackLaw``)."""
         if self.controller == "static":
             return static_feedback(self.omega, self.zeta)
         return compensated_feedback(self.omega, self.zeta)
 
+    def build(self, dt=0.004):
+        """``(observer, controller)``: the loop the synthesis certifies and the nodes run."""
+        return self.build_observer(dt), self.build_controller()
 
-def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = 2.0, plant=None):
-    """Would these gains be safe under the identified sets?
 
-    Returns ``(ok, reason, analysis)``: ``ok`` is False when the closed loop is unstable or
-    when R_u (sound outer bound, plus |u_ff|) leaves U_p = [-u_max, u_max].
+@dataclass(frozen=True)
+class Certificate:
+    """Outcome of :func:`certify`: ``ok``, the ``reason`` when not, the certified
+    ``ru = R*_u`` interval (None when the loop is unstable), the :class:`Analysis` of the
+    monitored sets, and the ``inflation`` and ``u_e_ff`` it was computed with."""
+
+    ok: bool
+    reason: str
+    ru: tuple
+    analysis: object
+    inflation: float
+    u_e_ff: tuple
+
+
+def recorded_u_e_ff(joint_sets):
+    """``U_e,ff = [lo, hi]`` of the model's synthesis record (paper Appendix B), ``(0, 0)`` if none.
+
+    Written by the synthesis into ``JointSets.extra["reference_error"]["u_e_ff"]``.
     """
+    rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}).get("u_e_ff")
+    if rec is None:
+        return (0.0, 0.0)
+    try:
+        lo, hi = (float(v) for v in rec)
+    except (TypeError, ValueError):
+        raise ReachsetError(f"model: reference_error.u_e_ff must be [lo, hi], got {rec!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise ReachsetError(f"model: reference_error.u_e_ff must be a finite interval, got {rec!r}")
+    return (lo, hi)
+
+
+def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: float, u_e_ff=None, plant=None):
+    """Certify ``R*_u`` inside ``U_p`` for the sets the monitor actually checks.
+
+    The monitor accepts data conformant to ``W, V`` scaled by ``1 + inflation``
+    (:meth:`JointSets.xi`), so the guarantee covers those sets:
+    ``R*_u = [0 I] R~_cl,e[k_inf]((1 + inflation) alpha) (+) U_ff (+) U_e,ff`` (paper
+    Sec. III-A and Appendix B; ``U_ff = [-u_ff, u_ff]``; ``U_e,ff`` the reference feedforward
+    error, by default the model's synthesis record, :func:`recorded_u_e_ff`), with the sound
+    outer bound of :func:`~reachset_ros.systems.closedloop.analyze` (outward rounded). This is
+    the one certification of gains against sets: ``check_gains``, the controller node's gate
+    (model load, gain or ``u_max`` change), and the demo's monitored model all call it.
+
+    Returns
+    -------
+    Certificate
+        ``ok`` False with a reason naming R_u, its radius and U_p when ``R*_u`` leaves
+        ``U_p = [-u_max, u_max]``, or when the closed loop is unstable.
+    """
+    inflation = float(inflation)
+    if not math.isfinite(inflation) or inflation < 0:
+        raise ReachsetError(f"inflation must be finite and >= 0, got {inflation!r}")
+    ue = recorded_u_e_ff(joint_sets) if u_e_ff is None else tuple(float(v) for v in u_e_ff)
     plant = plant or lwa4p_joint_plant()
     cl = closedloop.close_loop(plant, gains.build_observer(plant.dt), gains.build_controller())
     st = closedloop.stability(cl)
     if not st.stable:
-        return False, f"closed loop unstable ({st.message})", None
-    a = closedloop.analyze(cl, joint_sets.alpha_w, joint_sets.alpha_v, u_ff=u_ff,
-                           c_w=joint_sets.c_w, c_v=joint_sets.c_v)
-    lo, hi = a.ru
+        return Certificate(False, f"closed loop unstable ({st.message})", None, None, inflation, ue)
+    s = 1.0 + inflation
+    a = closedloop.analyze(cl, s * np.asarray(joint_sets.alpha_w, float), s * np.asarray(joint_sets.alpha_v, float),
+                           u_ff=u_ff, c_w=joint_sets.c_w, c_v=joint_sets.c_v)
+    if not a.stable:
+        return Certificate(False, f"closed loop unstable ({a.stability.message})", None, a, inflation, ue)
+    lo, hi = a.ru[0] + min(ue[0], 0.0), a.ru[1] + max(ue[1], 0.0)
+    ru = (float(lo), float(hi))
     if lo < -u_max or hi > u_max:
-        return False, f"reachable input R_u = [{lo:.3g}, {hi:.3g}] leaves U_p = +-{u_max:g} rad/s^2", a
-    return True, "", a
+        why = (f"reachable input R*_u = [{lo:.4g}, {hi:.4g}] (radius {max(-lo, hi):.4g}) leaves "
+               f"U_p = +-{u_max:g} rad/s^2 (sets inflated by 1 + {inflation:g}, |u_ff| <= {u_ff:g}, "
+               f"U_e,ff = [{ue[0]:.3g}, {ue[1]:.3g}])")
+        return Certificate(False, why, ru, a, inflation, ue)
+    return Certificate(True, "", ru, a, inflation, ue)
+
+
+def max_certified_inflation(gains: Gains, joint_sets, u_max: float, u_ff: float, u_e_ff=None, plant=None):
+    """Largest inflation ``i >= 0`` with :func:`certify` ok, or None when not even ``i = 0`` is.
+
+    ``R_u`` is linear in ``alpha`` (:func:`~reachset_ros.systems.closedloop.radius_coefficients`),
+    so its disturbance part scales with ``1 + i``; the returned value is rounded down and
+    checked with :func:`certify`.
+    """
+    c0 = certify(gains, joint_sets, 0.0, u_max, u_ff, u_e_ff, plant)
+    if not c0.ok:
+        return None
+    a, ue = c0.analysis, c0.u_e_ff
+    cen = 0.5 * (a.ru[0] + a.ru[1])
+    r = 0.5 * (a.ru[1] - a.ru[0]) - abs(u_ff)                # disturbance part of R_u
+    if r <= 0:
+        return math.inf
+    room = min(u_max - (cen + abs(u_ff) + max(ue[1], 0.0)), u_max + (cen - abs(u_ff) + min(ue[0], 0.0)))
+    i = max(0.0, room / r - 1.0) * (1.0 - 1e-9)
+    while i > 0 and not certify(gains, joint_sets, i, u_max, u_ff, u_e_ff, plant).ok:
+        i *= 1.0 - 1e-6
+    return i
+
+
+def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = 2.0, plant=None, inflation: float = 0.0,
+                u_e_ff=None):
+    """Would these gains be safe under the sets the monitor checks?
+
+    Returns ``(ok, reason, analysis)`` of :func:`certify`: ``ok`` is False when the closed
+    loop is unstable or when ``R*_u`` (sound outer bound with alpha scaled by ``1 + inflation``,
+    plus ``|u_ff|`` and ``U_e,ff``) leaves ``U_p = [-u_max, u_max]``.
+    """
+    c = certify(gains, joint_sets, inflation, u_max, u_ff, u_e_ff, plant)
+    return c.ok, c.reason, c.analysis
+
+
+def model_limits(joint_sets):
+    """``(u_max, u_ff)`` the synthesis recorded with a joint's gains (``JointSets.gains``)."""
+    g = joint_sets.gains or {}
+    if "u_max" not in g:
+        raise ReachsetError("model: the joint's gains do not record u_max (not written by the synthesis)")
+    return float(g["u_max"]), float(g.get("u_ff", 2.0))
+
+
+def certified_inflation(model, requested: float):
+    """The largest inflation ``<= requested`` certified for every joint of a synthesised model.
+
+    Per joint, its recorded gains (:meth:`Gains.from_model`), ``u_max`` and ``u_ff``
+    (:func:`model_limits`) and its sets go through :func:`max_certified_inflation`. Returns
+    ``(inflation, {joint: largest certified inflation})``; raises ReachsetError naming the
+    joint when not even inflation 0 is certified.
+    """
+    per = {}
+    for name, js in model.joints.items():
+        u_max, u_ff = model_limits(js)
+        best = max_certified_inflation(Gains.from_model(js.gains), js, u_max, u_ff, plant=model.plant)
+        if best is None:
+            c = certify(Gains.from_model(js.gains), js, 0.0, u_max, u_ff, plant=model.plant)
+            raise ReachsetError(f"joint {name}: {c.reason}")
+        per[name] = float(best)
+    return float(min([float(requested), *per.values()])), per

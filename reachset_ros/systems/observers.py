@@ -117,6 +117,16 @@ class LinearObserver:
         xo = np.linalg.lstsq(self.Co, rhs, rcond=None)[0]
         return ObserverState(self, xo)
 
+    def start_state(self, y0):
+        """The state an observer starts from at its first measurement ``y0`` (a scalar
+        position): the estimate is ``q = y0`` and zero for every other component, with a
+        zero plant input (``observer_node`` starts and restarts here; the closed loop's
+        transient from this state is what :func:`~reachset_ros.systems.closedloop.settling_ticks`
+        measures)."""
+        x_hat = np.zeros(len(self.estimate_names))
+        x_hat[self.index("q")] = float(y0)
+        return self.initial_state(x_hat, [float(y0)], [0.0] * self.Bo_u.shape[1])
+
 
 def observer_output(obs, xo, y, u):
     """Estimate ``x_hat = Co xo + Do_y y + Do_u u``."""

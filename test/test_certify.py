@@ -1,0 +1,99 @@
+"""R*_u inside U_p is certified for the sets the monitor actually checks (issue 14.6).
+
+The monitor accepts data conformant to the sets scaled by 1 + inflation, so the reachable
+input must be certified with alpha scaled by 1 + inflation, plus U_ff and the model's
+recorded U_e,ff, wherever gains meet sets: ``systems.gains.certify`` (``check_gains``), the
+controller node's gate, the synthesis node's apply path, the demo's monitored model.
+"""
+import rclpy
+import pytest
+
+from reachset_ros.conformance import model as mdl
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.errors import ReachsetError
+from reachset_ros.nodes.synthesis_node import certify_synthesis
+from reachset_ros.systems.gains import Gains, certified_inflation, certify, check_gains, max_certified_inflation
+from reachset_ros.systems.plant import lwa4p_joint_plant
+
+#: Table II axis 1: HG (h1 = 15, h2 = 30) + static feedback, and its identified sets
+TABLE_II = Gains(omega=24.40, zeta=0.96, h1=15.0, h2=30.0)
+SETS = mdl.JointSets((0.0348, 3.59), (3.49e-5,), (0.0,) * 5, (0.0,), 0, 125)
+PLANT = lwa4p_joint_plant()
+
+
+def _model(path, inflation, extra=None, gains=TABLE_II):
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
+                       gains={**gains.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=extra or {})
+    mdl.save(mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
+                                  {"arm_1_joint": js}, inflation), path)
+    return path
+
+
+def test_table_ii_at_inflation_one_is_refused_naming_r_u_and_u_p():
+    """HEAD's check_gains used the uninflated alpha (R_u radius 15.68) and accepted."""
+    ok, why, _ = check_gains(TABLE_II, SETS, u_max=26.0, u_ff=2.0, plant=PLANT, inflation=1.0)
+    assert not ok
+    assert "R*_u = [-29.35, 29.35]" in why and "radius 29.35" in why and "U_p = +-26" in why
+    c = certify(TABLE_II, SETS, 1.0, 26.0, 2.0, plant=PLANT)
+    assert not c.ok and c.ru[1] == pytest.approx(29.35, abs=5e-3)
+    # R_u is linear in alpha: the disturbance part doubles
+    c0 = certify(TABLE_II, SETS, 0.0, 26.0, 2.0, plant=PLANT)
+    assert c0.ok and c0.reason == ""
+    assert c.ru[1] - 2.0 == pytest.approx(2 * (c0.ru[1] - 2.0), rel=1e-12)
+
+
+def test_recorded_u_e_ff_counts():
+    rec = {"reference_error": {"u_e_ff": [-0.5, 10.5]}}
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125, extra=rec)
+    c = certify(TABLE_II, js, 0.0, 26.0, 2.0, plant=PLANT)
+    assert not c.ok and c.ru == pytest.approx((-15.6756 - 0.5, 15.6756 + 10.5), abs=1e-3)
+    assert "U_e,ff = [-0.5, 10.5]" in c.reason
+    assert certify(TABLE_II, js, 0.0, 26.0, 2.0, u_e_ff=(0.0, 0.0), plant=PLANT).ok
+    with pytest.raises(ReachsetError, match="u_e_ff"):
+        certify(TABLE_II, mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v,
+                                        extra={"reference_error": {"u_e_ff": [1.0]}}), 0.0, 26.0, 2.0, plant=PLANT)
+
+
+def test_largest_certified_inflation():
+    i = max_certified_inflation(TABLE_II, SETS, 26.0, 2.0, plant=PLANT)
+    assert 0.75 < i < 0.76
+    assert certify(TABLE_II, SETS, i, 26.0, 2.0, plant=PLANT).ok
+    assert not certify(TABLE_II, SETS, i * (1 + 1e-5), 26.0, 2.0, plant=PLANT).ok
+    assert max_certified_inflation(TABLE_II, SETS, 10.0, 2.0, plant=PLANT) is None
+
+
+def test_demo_caps_the_inflation_at_the_certified_one(tmp_path):
+    m = mdl.load(_model(tmp_path / "m.yaml", 0.0))
+    used, per = certified_inflation(m, 1.0)
+    assert used == per["arm_1_joint"] and 0.75 < used < 0.76
+    assert certified_inflation(m, 0.5)[0] == 0.5
+
+
+def test_synthesis_apply_path_certifies_the_model_it_applies(tmp_path):
+    data = {"joints": {"arm_1_joint": {"u_max": 26.0, "u_ff": 2.0}}}
+    assert certify_synthesis(data, str(_model(tmp_path / "a.yaml", 0.0))) == ""
+    why = certify_synthesis(data, str(_model(tmp_path / "b.yaml", 1.0)))
+    assert why.startswith("joint arm_1_joint: reachable input R*_u") and "U_p = +-26" in why
+    assert "not in the model" in certify_synthesis({"joints": {"arm_9_joint": {"u_max": 26.0}}},
+                                                   str(tmp_path / "a.yaml"))
+
+
+@pytest.mark.parametrize("inflation, refused", [(0.0, False), (1.0, True)])
+def test_controller_gate_certifies_the_model_inflation(tmp_path, monkeypatch, inflation, refused):
+    """The controller node (real rclpy) refuses to start with Table II gains under a model
+    whose inflation 1 takes R*_u out of U_p; HEAD started."""
+    from reachset_ros.nodes.controller_node import ControllerNode
+    monkeypatch.chdir(tmp_path)
+    path = _model(tmp_path / "m.yaml", inflation)
+    rclpy.init(args=["--ros-args", "-p", f"model_file:={path}", "-p", "joints:=[arm_1_joint]",
+                     "-p", "u_max:=[26.0]", "-p", "omega:=[24.4]", "-p", "zeta:=[0.96]",
+                     "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
+    try:
+        if refused:
+            with pytest.raises(ReachsetError, match=r"arm_1_joint: reachable input R\*_u .*radius 29.35.*U_p = \+-26"):
+                ControllerNode()
+        else:
+            node = ControllerNode()
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()
