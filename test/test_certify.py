@@ -62,7 +62,8 @@ def test_largest_certified_inflation():
     assert max_certified_inflation(TABLE_II, SETS, 10.0, 2.0, plant=PLANT) is None
 
 
-def test_demo_caps_the_inflation_at_the_certified_one(tmp_path):
+def test_largest_certified_inflation_of_a_model(tmp_path):
+    """What the demo reports as ``inflation_certified`` (it does not claim R*_u beyond it)."""
     m = mdl.load(_model(tmp_path / "m.yaml", 0.0))
     used, per = certified_inflation(m, 1.0)
     assert used == per["arm_1_joint"] and 0.75 < used < 0.76

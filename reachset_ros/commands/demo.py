@@ -133,6 +133,8 @@ def summarize(res, record, workdir):
         "record": str(record), "early_stop": res.get("early_stop"),
         "monitor_model": res.get("monitor_model"), "inflation": res.get("inflation"),
         "margin": res.get("inflation"),   # deprecated name of "inflation", kept for readers of old summaries
+        "inflation_certified": res.get("inflation_certified"),       # largest inflation with R*_u in U_p, per joint
+        "inflation_is_certified": res.get("inflation_is_certified"),
         "ticks_monitored": int(len(before)),
         "gains_before": (res.get("phases") or [{}])[0].get("gains"),
         "gains_after": {n: j["gains"] for n, j in ((res.get("reidentify") or res.get("synthesis") or {})
