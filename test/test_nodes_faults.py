@@ -537,6 +537,11 @@ class TestMonitorNode:
         assert (level, message) == (DiagnosticStatus.WARN, "waiting for /plant_input")
         assert c["dropped_incomplete"] - before.get("dropped_incomplete", 0) > 0
         assert c.get("ticks", 0) == before.get("ticks", 0)
+        # the second half checks that every tick is checked, not the watchdog: give it 1 s, so
+        # that a pause of this test's own Python publisher (a CI run saw one of 200 ms in the
+        # full suite, with the loop's data intact) is not taken for the stream going silent
+        ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 250})
+        assert ok, why
         bus.send_ticks(ts[500:], Y[500:], U[500:])
         assert bus.wait(lambda: len(bus.statuses(ts)) == 200)
         assert warm_up_then_conformant(bus.statuses(ts)) and not bus.active_stops()
