@@ -5,7 +5,8 @@ Data follow the per-joint plant with bounded disturbances; the model is identifi
 them, so every tick checks k*+1 test cases per joint. Two timings: ``Monitor.tick`` alone,
 and the whole per-tick check of the monitor node's core (the tick plus the coverage
 accounting of :class:`~reachset_ros.conformance.monitor.CoverageWatch`: how far the test
-cases reached, issue 14.1), as ``MonitorCore`` runs it.
+cases reached, issue 14.1), and the monitor node's whole per-tick work without ROS
+(``MonitorCore.add_y`` + ``add_u``: name mapping, pairing, gap counting, the tick, coverage).
 """
 import argparse
 import time
@@ -15,15 +16,14 @@ import numpy as np
 from reachset_ros import conformance as cf
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.conformance.model import ConformanceModel, JointSets
-from reachset_ros.conformance.monitor import CoverageWatch, Monitor, MonitorModel
+from reachset_ros.conformance.monitor import CoverageWatch, Monitor, MonitorModel, TickEvent
+from reachset_ros.nodes.monitor_node import MonitorCore
 from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--ticks", type=int, default=30000)
-    a = ap.parse_args()
-    p, J, K, T = lwa4p_joint_plant(), 6, 125, a.ticks
+def make_data(T, J=6, K=125):
+    """Closed-loop data of J joints for T ticks and the model identified on them."""
+    p = lwa4p_joint_plant()
     rng = np.random.default_rng(0)
     Y, U, X = np.zeros((T, J)), np.zeros((T, J)), np.zeros((J, 5))
     for k in range(T):
@@ -36,6 +36,15 @@ def main():
         s = cf.identify_sets(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, T),), K, thm))
         joints[f"j{j}"] = JointSets(tuple(s.alpha_w), tuple(s.alpha_v), tuple(s.c_w), tuple(s.c_v))
     model = ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator(), K, joints)
+    return model, thm, Y, U
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--ticks", type=int, default=30000)
+    a = ap.parse_args()
+    J, K, T = 6, 125, a.ticks
+    model, thm, Y, U = make_data(T, J, K)
 
     def run(with_coverage):
         mon = Monitor([MonitorModel.from_model(model, f"j{j}", thm) for j in range(J)])
@@ -44,16 +53,32 @@ def main():
         for i in range(T):
             stamp = 10**18 + 4_000_000 * i
             t0 = time.perf_counter()
-            mon.tick(stamp, Y[i], U[i])
+            res = mon.tick(stamp, Y[i], U[i])
             if with_coverage:   # what MonitorCore does after each tick
-                longest = K if mon.reached_horizon().all() else int(mon.longest_step().min())
-                if cov.update(stamp, longest) is not None:
+                if cov.update(stamp, min(res["longest"].tolist())) is not None:
                     raise SystemExit(f"coverage fault at tick {i} on a clean 250 Hz stream")
             d[i] = time.perf_counter() - t0
         return d[K + 10:] * 1e6
 
-    for label, cov in (("monitor tick", False), ("tick + coverage (MonitorCore)", True)):
-        d = run(cov)
+    def run_core():
+        """The monitor node's whole per-tick work without ROS: pairing, the tick, coverage."""
+        core = MonitorCore(model)
+        names = [f"j{j}" for j in range(J)]
+        d = np.empty(T)
+        for i in range(T):
+            stamp = 10**18 + 4_000_000 * i
+            y, u = Y[i].tolist(), U[i].tolist()     # as the node gets them from the messages
+            t0 = time.perf_counter()
+            core.add_y(stamp, names, y)
+            events = core.add_u(stamp, names, u)
+            d[i] = time.perf_counter() - t0
+            if len(events) != 1 or not isinstance(events[0], TickEvent):
+                raise SystemExit(f"unexpected events at tick {i}: {events}")
+        return d[K + 10:] * 1e6
+
+    for label, d in (("monitor tick", lambda: run(False)), ("tick + coverage", lambda: run(True)),
+                     ("MonitorCore.add_y + add_u (the node's whole check)", run_core)):
+        d = d()
         print(f"{label}, {J} joints, k*={K}, {len(d)} ticks: mean {d.mean():.1f} us, "
               f"p50 {np.percentile(d, 50):.1f} us, p99 {np.percentile(d, 99):.1f} us, max {d.max():.1f} us")
 

@@ -69,7 +69,7 @@ def test_kernel_equals_numpy_bit_for_bit(plant_kind):
         ra, rb = a.tick(int(stamps[t]), Ys[t], Us[t]), b.tick(int(stamps[t]), Ys[t], Us[t])
         assert ra["status"] == rb["status"], t
         seen.update(ra["status"])
-        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound"):
+        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound", "longest"):
             assert ra[key].tobytes() == rb[key].tobytes(), (t, key, ra[key], rb[key])
         if t % 97 == 0 or t == len(stamps) - 1:
             assert a.X.tobytes() == b.X.tobytes()
@@ -150,6 +150,7 @@ def test_longest_step_and_horizon_reached_say_how_much_was_checked(kernel):
         expect = np.where(mon.in_segment > H, np.minimum(mon.in_segment - H - 1, K), -1)
         longest = mon.longest_step()
         assert np.array_equal(longest, expect), (t, longest, expect)
+        assert np.array_equal(r["longest"], expect), (t, r["longest"], expect)
         assert np.array_equal(mon.reached_horizon(), expect == K), t
         assert np.array_equal(r["checked"] > 0, longest >= 0), t
         assert q.checked == r["checked"][0] and q.conformant == (q.checked > 0 and q.status in ("ok", "gap_reset"))

@@ -42,6 +42,7 @@ typedef struct {
     double *margin, *deviation, *bound;
     int64_t *checked, *step, *start_tick;
     int8_t *status;           /* 0 ok, 1 violation, 2 invalid, 3 gap_reset */
+    int64_t *longest;         /* largest step k checked this tick (-1: none) */
 } tick_state;
 
 /* out[c] = sum over the nonzero entries a of row `row` of M (n_cols wide), in order, of
@@ -181,7 +182,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         }
     int64_t all_ok = all_valid && !gap;
     for (int64_t j = 0; j < J; ++j) {
-        int64_t cnt = 0;
+        int64_t cnt = 0, longest = -1;
         for (int64_t k = 0; k < S; ++k) {
             int64_t c = j * S + k;
             int64_t a = s->ages[c] < S - 1 ? s->ages[c] : S - 1;
@@ -189,6 +190,8 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
                 mp[c] = s->dp[j * S + a] - s->Ny[c];
                 mm[c] = s->dm[j * S + a] + s->Ny[c];
                 ++cnt;
+                if (s->ages[c] > longest)
+                    longest = s->ages[c];
             } else {
                 mp[c] = INFINITY;
                 mm[c] = INFINITY;
@@ -202,6 +205,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         int64_t c = j * S + col;
         int64_t k = s->ages[c] < S - 1 ? s->ages[c] : S - 1;
         s->checked[j] = cnt;
+        s->longest[j] = longest;
         s->margin[j] = valid[j] ? margin : -INFINITY;
         s->step[j] = cnt > 0 ? k : -1;
         s->start_tick[j] = cnt > 0 ? s->start[c] : -1;

@@ -346,7 +346,9 @@ class Monitor:
         """Check one tick; returns a dict of per-joint arrays.
 
         Keys: ``status`` (list of ok | violation | invalid | gap_reset), ``margin`` (J,),
-        ``checked`` (J,), ``step`` (J,), ``start_tick`` (J,), ``deviation`` (J,), ``bound`` (J,).
+        ``checked`` (J,), ``step`` (J,), ``start_tick`` (J,), ``deviation`` (J,), ``bound`` (J,),
+        ``longest`` (J,): the largest step k checked at this tick (-1: nothing checked; k*:
+        the test case started k* ticks ago was checked, Theorem 1's last row).
         """
         if not self.kernel:
             return self._tick_numpy(stamp_ns, y, u)
@@ -361,7 +363,8 @@ class Monitor:
             status = [self.STATUS[s] for s in out["status"].tolist()]
         return {"status": status, "margin": out["margin"].copy(), "checked": out["checked"].copy(),
                 "step": out["step"].copy(), "start_tick": out["start_tick"].copy(),
-                "deviation": out["deviation"].copy(), "bound": out["bound"].copy()}
+                "deviation": out["deviation"].copy(), "bound": out["bound"].copy(),
+                "longest": out["longest"].copy()}
 
     def _kernel_setup(self):
         p, J, S = self.plant, self.J, self.S
@@ -372,7 +375,8 @@ class Monitor:
              "act": self.active.view(np.uint8),
              "out": {"margin": np.empty(J), "deviation": np.empty(J), "bound": np.empty(J),
                      "checked": np.empty(J, np.int64), "step": np.empty(J, np.int64),
-                     "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8)}}
+                     "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8),
+                     "longest": np.empty(J, np.int64)}}
         o = k["out"]
         ptr = kernels.ptr
         cl = self._clock
@@ -388,7 +392,7 @@ class Monitor:
             y_in=ptr(k["y"]), u_in=ptr(k["u"]),
             margin=ptr(o["margin"]), deviation=ptr(o["deviation"]), bound=ptr(o["bound"]),
             checked=ptr(o["checked"]), step=ptr(o["step"]), start_tick=ptr(o["start_tick"]),
-            status=ptr(o["status"]))
+            status=ptr(o["status"]), longest=ptr(o["longest"]))
         k["state"] = st
         k["ptr"] = ctypes.cast(ctypes.pointer(st), ctypes.c_void_p)
         k["mp_ptr"], k["mm_ptr"] = ptr(k["mp"]), ptr(k["mm"])
@@ -479,7 +483,8 @@ class Monitor:
         return {"status": status, "margin": np.where(valid, margin, -np.inf), "checked": checked,
                 "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
                 "deviation": np.where(has, np.where(use_p, Ny[r, col], -Ny[r, col]), 0.0),
-                "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0)}
+                "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0),
+                "longest": np.where(active, self.ages, -1).max(axis=1)}
 
 
 class CoverageWatch:
@@ -608,7 +613,7 @@ class _TickState(ctypes.Structure):
                     "dp", "dm", "X0", "X1", "cur", "start", "ages", "active", "y_hist", "u_hist",
                     "in_segment", "tick_index", "last_stamp", "has_last", "Y", "Ny", "U", "BU",
                     "y_in", "u_in", "margin", "deviation", "bound", "checked", "step", "start_tick",
-                    "status")])
+                    "status", "longest")])
 
 
 def _tick_kernel_applies(plant, estimator, joints):

@@ -100,6 +100,7 @@ class MonitorCore:
         keep = model.horizon + model.estimator.history + 2
         self.window = collections.deque(maxlen=keep)
         self.coverage = CoverageWatch(self.dt_ns, model.estimator.history, model.horizon, max_missing_ticks)
+        self._name_map = {}           # topic kind -> (names, index array or None, other names present)
 
     def reset(self):
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
@@ -117,23 +118,41 @@ class MonitorCore:
         return self.add("u", stamp, names, values)
 
     def _pick(self, kind, names, values, stamp):
-        """The monitored joints' values in ``self.joints`` order, or None and the FaultEvent."""
-        what = TOPIC[kind]
+        """The monitored joints' values in ``self.joints`` order, or None and the FaultEvent.
+
+        The mapping from a message's names to the monitored joints is kept per topic while
+        the names stay the same (the usual case: every message names the same joints in the
+        same order); names that change are checked anew, a bad list is never kept.
+        """
         if len(values) != len(names):
             return None, FaultEvent(stamp, "invalid_sample",
-                                    f"{what} at {stamp} ns has {len(names)} names but {len(values)} values")
+                                    f"{TOPIC[kind]} at {stamp} ns has {len(names)} names but {len(values)} values")
+        cached = self._name_map.get(kind)
+        if cached is None or cached[0] != names:
+            idx, extra, err = self._map_names(kind, names, stamp)
+            if err is not None:
+                return None, err
+            cached = self._name_map[kind] = (list(names), idx, extra)
+        if cached[2]:
+            self.counters["extra_names_" + kind] += 1
+        vals = np.array(values, dtype=np.float64)
+        return (vals if cached[1] is None else vals[cached[1]]), None
+
+    def _map_names(self, kind, names, stamp):
+        """(index array or None for the identity, whether other names are present, FaultEvent or None)."""
+        what = TOPIC[kind]
         idx = {}
         for i, n in enumerate(names):
             if n in idx and n in self.wanted:
-                return None, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns names joint {n} twice", n)
+                return None, False, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns names joint {n} twice", n)
             idx[n] = i
         missing = [j for j in self.joints if j not in idx]
         if missing:
-            return None, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0]}",
-                                    missing[0])
-        if len(idx) > len(self.joints):
-            self.counters["extra_names_" + kind] += 1
-        return np.array([values[idx[j]] for j in self.joints], dtype=np.float64), None
+            return None, False, FaultEvent(stamp, "name_mismatch", f"{what} at {stamp} ns lacks joint {missing[0]}",
+                                           missing[0])
+        order = [idx[j] for j in self.joints]
+        identity = order == list(range(len(names)))
+        return (None if identity else np.array(order, dtype=np.intp)), len(idx) > len(self.joints), None
 
     def add(self, kind, stamp, names, values):
         events = []
@@ -182,16 +201,12 @@ class MonitorCore:
         duration = time.perf_counter() - t0
         self.counters["ticks"] += 1
         self.ticks_since_reset += 1
-        bad = [j for j, s in enumerate(res["status"]) if s == "invalid"]
-        if bad:
+        if "invalid" in res["status"]:
             self.counters["invalid_ticks"] += 1
-            j = self.joints[bad[0]]
+            j = self.joints[res["status"].index("invalid")]
             return [FaultEvent(stamp, "invalid_sample", f"invalid (non-finite) sample of joint {j} at {stamp} ns", j)]
-        mon = self.monitor
-        if mon.reached_horizon().all():
-            longest = mon.horizon
-        else:
-            longest = int(mon.longest_step().min())
+        longest = min(res["longest"].tolist())
+        if longest < self.monitor.horizon:
             self.counters["unchecked_ticks" if longest < 0 else "short_ticks"] += 1
         events = [TickEvent(stamp, res, duration, longest)]
         fault = self.coverage.update(stamp, longest)
