@@ -42,6 +42,10 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     fault, stop = res["fault_injected_ns"], res["safe_stop_ns"]
     assert fault is not None and stop is not None
     assert res["failures"] == [] and res["early_stop"] is None
+    # the gains were synthesised for the inflation the monitor checks: R*_u inside U_p holds for
+    # the monitored sets (before: the demo's monitor ran with inflation 1.0, certified to ~1e-4)
+    assert res["inflation"] == 1.0 and res["inflation_is_certified"] is True, res["inflation_certified"]
+    assert all(v >= res["inflation"] for v in res["inflation_certified"].values()), res["inflation_certified"]
     status, stops = read_status_and_stops(record)
     active = sorted(st for st, m, _ in stops if m.active)
     assert active and active[0] >= fault, "no safe stop before the fault"

@@ -454,3 +454,41 @@ def test_cli_synthesize_with_a_reference_class(bag_without_reference, small_conf
                            capsys)
     assert code == 0, se
     assert json.loads(so)["joints"][JOINTS[0]]["reference_error"]["source"].startswith("reference class")
+
+
+def test_cli_synthesize_with_inflation_certifies_the_monitored_sets(bag, small_config, tmp_path, capsys):
+    """``synthesize --inflation F``: gains whose R*_u stays inside U_p for the sets the monitor
+    checks (W, V scaled by 1 + F), recorded in the model; the synthesis without it is certified
+    only far below F when U_p binds (U_p = +-6 here; the demo's old NOT CERTIFIED: its monitor
+    checked inflation 1.0 with gains synthesised for 0)."""
+    from reachset_ros.systems.gains import Gains, certified_inflation, certify
+    joint = JOINTS[0]
+    models = {}
+    for f in (0.0, 1.0):
+        out = tmp_path / f"m{f:g}.yaml"
+        code, so, se = run_cli(["synthesize", bag, "--json", "--out", out, "--config", small_config,
+                                "--joints", joint, "--inflation", f, "--u-max", 6], capsys)
+        assert code == 0, se
+        d = json.loads(so)
+        j = d["joints"][joint]
+        assert d["inflation"] == f and j["inflation"] == f and j["ru_inside_up"] and j["conformant"]
+        m = models[f] = mdl.load(out)
+        assert m.inflation == f
+        js = m.joints[joint]
+        c = certify(Gains.from_model(js.gains), js, f, js.gains["u_max"], js.gains["u_ff"], plant=PLANT)
+        assert c.ok, c.reason
+        # the reported R_u is that of the inflated sets, as certify computes it (to rounding)
+        assert abs(max(-c.ru[0], c.ru[1]) - max(-j["ru"][0], j["ru"][1])) <= 1e-6 * j["u_max"]
+    used, per_joint = certified_inflation(models[0.0], 1.0)
+    assert used < 1.0 and per_joint[joint] < 1.0          # the uninflated synthesis does not cover it
+    used, per_joint = certified_inflation(models[1.0], 1.0)
+    assert used == 1.0 and per_joint[joint] >= 1.0
+    # more room is needed for the doubled sets: a slower loop, a larger guaranteed error
+    g0, g1 = models[0.0].joints[joint].gains, models[1.0].joints[joint].gains
+    assert models[1.0].joints[joint].gains["re_norm"] > g0["re_norm"]
+    assert g1["omega"] <= g0["omega"] + 1e-9
+
+
+def test_synthesize_refuses_a_negative_inflation(bag, capsys):
+    code, so, se = run_cli(["synthesize", bag, "--inflation", "-0.5"], capsys)
+    assert code == 2 and "inflation" in se and len(se.strip().splitlines()) == 1

@@ -56,7 +56,7 @@ def run(args):
     record = Path(args.record) if args.record else workdir / "monitored"
     if record.exists():
         raise ReachsetError(f"{record}: output bag already exists")
-    if not record.parent.exists():
+    if args.record and not record.parent.exists():     # the workdir itself is created by the demo
         raise ReachsetError(f"{record.parent}: directory does not exist")
     try:
         kind, joint, mag = args.fault.split(":")

@@ -82,6 +82,9 @@ def add_arguments(p):
     p.add_argument("--out", help="write the model (sets + gains) YAML here")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures (R_e, R_u, conformance) into DIR")
     p.add_argument("--dt", type=float, default=0.004, help="sampling time, s")
+    p.add_argument("--inflation", type=float, default=None, metavar="F",
+                   help="the monitor will check the sets scaled by 1 + F: R*_u inside U_p is enforced and R*_e "
+                        "reported for those sets, and the model records F (default 0; reidentify: the model's)")
 
 
 def _kv(items, what):
@@ -152,6 +155,7 @@ def run(args):
     if args.dt <= 0 or not math.isfinite(args.dt):
         raise ReachsetError("--dt must be positive")
     _finite("u-ff", args.u_ff)
+    _finite("inflation", args.inflation)
     if args.horizon is not None and args.horizon < 0:
         raise ReachsetError("--horizon must be >= 0")
     for v in args.u_max or []:
@@ -171,7 +175,8 @@ def run(args):
                          tuple(args.lqg_r or ()), args.config, args.model, args.dt,
                          allow_weak_horizon=args.allow_weak_horizon,
                          reference_class=(None if args.reference_class is None
-                                          else ReferenceClass.parse(args.reference_class)))
+                                          else ReferenceClass.parse(args.reference_class)),
+                         inflation=args.inflation)
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []

@@ -146,8 +146,10 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         cfg = config_path()
         demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
         extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else [""]
-        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra},
-                                  workdir))
+        # the gains are synthesised for the sets the monitor will check (inflated by 1 + inflation),
+        # so R*_u inside U_p is certified for them (synthesize --inflation)
+        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra,
+                                                     "inflation": float(inflation)}, workdir))
 
         def record_phase(name, seconds, topics, path):
             node = "recorder_node_" + name.replace(" ", "_")
@@ -206,11 +208,10 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         # let the transient of the live gain change settle before monitoring starts: the
         # switch itself (estimates and commands jump) is not a motion the training covered
         timed("settle", settle)
-        # the monitor gets the model with the demo's inflation of the sets (an empirical safety
-        # factor against false alarms). R*_u inside U_p is certified (systems.gains.certify) for
-        # the synthesised gains only up to the largest certified inflation: the demo says so and
-        # records it; it does not claim R*_u for the inflated sets (docs/theory.md, "What is
-        # guaranteed"). The controller keeps the synthesised model, whose certificate holds.
+        # the monitor gets the synthesised model, whose gains were synthesised and certified for
+        # the demo's inflation of the sets (synthesize --inflation): R*_u inside U_p holds for the
+        # sets it checks. The certificate is checked again here (systems.gains.certify); if it
+        # did not cover the inflation the demo would say so (NOT CERTIFIED) and record it.
         monitor_model = workdir / "monitor_model.yaml"
         synthesized = mdl.load(res.result.model_file)
         used, per_joint = certified_inflation(synthesized, float(inflation))

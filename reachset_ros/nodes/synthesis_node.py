@@ -168,6 +168,9 @@ class SynthesisNode(Node):
         self.declare_parameter("model_file", "", desc("current model (reidentify keeps its gains)"))
         self.declare_parameter("observer", "hg", desc("observer of combined/separate synthesis: hg | eso"))
         self.declare_parameter("extra_args", [""], desc("extra `reachset synthesize` arguments"))
+        self.declare_parameter("inflation", -1.0, desc("the monitor's set inflation the gains are certified for "
+                                                       "(`reachset synthesize --inflation`); < 0: synthesize's "
+                                                       "default (0; reidentify: the current model's)", -1.0, 1e3))
         self.declare_parameter("targets", ["controller_node", "observer_node", "monitor_node"],
                                desc("nodes the gains/model are applied to"))
         self.pub = self.create_publisher(SynthesisResult, "synthesis/result", SAFE_STOP_QOS)
@@ -224,6 +227,9 @@ class SynthesisNode(Node):
             cmd += ["--model", current]
         else:
             cmd += ["--observer", self.get_parameter("observer").value]
+        inflation = float(self.get_parameter("inflation").value)
+        if inflation >= 0:
+            cmd += ["--inflation", repr(inflation)]
         cmd += [a for a in self.get_parameter("extra_args").value if a]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode != 0:

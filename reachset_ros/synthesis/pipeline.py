@@ -110,13 +110,15 @@ class BagSynthesis:
     minimum_horizon: int = None         # the plant's minimum k* (kernels.minimum_horizon)
     horizon_below_minimum: bool = False  # k* accepted below it (allow_weak_horizon)
     reference_class: object = None      # ReferenceClass used instead of/over the recorded references
+    inflation: float = 0.0              # the model's inflation: R*_e, R*_u are for the inflated sets
 
     def as_dict(self):
         d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
              "data": self.report.as_dict(), "reference_method": self.reference_method, "seed": self.seed,
              "horizon": self.horizon, "minimum_horizon": self.minimum_horizon,
              "horizon_below_minimum": self.horizon_below_minimum,
-             "reference_class": self.reference_class.as_dict() if self.reference_class is not None else None}
+             "reference_class": self.reference_class.as_dict() if self.reference_class is not None else None,
+             "inflation": float(self.inflation)}
         if self.space is not None:
             d.update(observer=self.space.observer, controller=self.space.controller, free=list(self.space.free),
                      search_box={n: list(self.space.bounds[n]) for n in self.space.free})
@@ -129,8 +131,8 @@ class BagSynthesis:
             joints[n] = mdl.JointSets(tuple(r.alpha_w.tolist()), tuple(r.alpha_v.tolist()), tuple(r.c_w.tolist()),
                                       tuple(r.c_v.tolist()), r.test_cases, self.horizon, r.gains(),
                                       {"reference_error": r.reference, "conformant": r.conformant})
-        return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints, 0.0,
-                                    mdl.provenance(self.bags, command), self.minimum_horizon,
+        return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints,
+                                    float(self.inflation), mdl.provenance(self.bags, command), self.minimum_horizon,
                                     self.horizon_below_minimum)
 
 
@@ -138,7 +140,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                     bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
-                    dt=0.004, allow_weak_horizon=False, reference_class=None):
+                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -161,6 +163,10 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         Bound the reference error (Appendix B) over this class instead of the bags'
         ``/reference`` (which must then lie in it). Without it every joint needs recorded
         references (reidentify: or a class recorded in the model); otherwise refused.
+    inflation : float, optional
+        The monitor checks the sets scaled by ``1 + inflation``; R*_u inside U_p is enforced
+        and R*_e reported for those sets, and the model records it. Default 0 (reidentify: the
+        model's).
 
     Returns
     -------
@@ -185,6 +191,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
             if n not in base.joints:
                 raise ReachsetError(f"joint {n} is not in the model {model}")
         space = None
+        inflation = base.inflation if inflation is None else inflation
     else:
         if model:
             raise ReachsetError("a model file is only used with mode reidentify")
@@ -196,6 +203,9 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         space = SearchSpace.from_config(cfg, observer, controller, free, fix, bounds, eso_input, dt)
     if horizon < 0:
         raise ReachsetError("horizon must be >= 0")
+    inflation = 0.0 if inflation is None else float(inflation)
+    if not (math.isfinite(inflation) and inflation >= 0):
+        raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
     series, report = read_joint_series(list(bags), names, plant.dt)
     names = list(series)
@@ -229,10 +239,10 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     refs = read_references(list(bags), names, plant.dt)
     classes = _reference_classes(names, refs, reference_class, model_classes, bags)
     problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
-                                    reference_class=classes)
+                                    reference_class=classes, inflation=inflation)
     results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
     return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
-                        int(reference_method), bags, k_min, weak, reference_class)
+                        int(reference_method), bags, k_min, weak, reference_class, inflation)
 
 
 def _reference_classes(names, refs, reference_class, model_classes, bags):

@@ -141,11 +141,17 @@ class JointProblem:
     stamps: np.ndarray = None
     ref_windows: tuple = ()
     reference_class: ReferenceClass = None
+    inflation: float = 0.0      # the monitor checks W, V scaled by 1 + inflation: R_e, R_u are for those
+
+    @property
+    def set_scale(self):
+        """``1 + inflation``: the factor on alpha of the sets the monitor checks (:meth:`JointSets.xi`)."""
+        return 1.0 + self.inflation
 
     @classmethod
     def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0,
                 thm=None, references=(), reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None,
-                stamps=None, reference_class=None):
+                stamps=None, reference_class=None, inflation=0.0):
         """Deviation extremes (one sweep over all test cases) and the reduced Theorem-1 rows.
 
         ``references`` (recorded) or ``reference_class`` is required (Appendix B). With a
@@ -162,6 +168,8 @@ class JointProblem:
             raise ReachsetError(f"joint {name}: u_max must be positive, got {u_max}")
         if not (math.isfinite(u_ff) and u_ff >= 0):
             raise ReachsetError(f"joint {name}: u_ff must be >= 0, got {u_ff}")
+        if not (math.isfinite(inflation) and inflation >= 0):
+            raise ReachsetError(f"joint {name}: inflation must be finite and >= 0, got {inflation}")
         if reference_method not in tuple(ReferenceMethod):
             raise ReachsetError(f"reference method must be 1, 2 or 3, got {reference_method}")
         reference_method = ReferenceMethod(int(reference_method))
@@ -194,7 +202,7 @@ class JointProblem:
                                                and reference_method == ReferenceMethod.REFERENCE_SET) else ())
         return cls(name, plant, estimator, thm, devs, horizon, poly, float(u_max), float(u_ff),
                    cf.as_2d(y), cf.as_2d(u), tuple(segments), refs, reference_method,
-                   poly.lower, stamps, windows, reference_class)
+                   poly.lower, stamps, windows, reference_class, float(inflation))
 
     @property
     def test_cases(self):
@@ -218,9 +226,10 @@ class JointProblem:
 
 def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, references=None,
                          reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None, thm=None,
-                         reference_class=None):
+                         reference_class=None, inflation=0.0):
     """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict;
-    ``reference_class``: a :class:`ReferenceClass` for all joints, a dict per joint, or None."""
+    ``reference_class``: a :class:`ReferenceClass` for all joints, a dict per joint, or None;
+    ``inflation``: the monitored sets' inflation the guarantee is computed for (all joints)."""
     thm = thm or cf.Theorem1.build(plant, horizon)
     out = []
     for name, s in series.items():
@@ -228,5 +237,5 @@ def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, referen
         refs = (references or {}).get(name, ())
         rc = reference_class.get(name) if isinstance(reference_class, dict) else reference_class
         out.append(JointProblem.prepare(name, plant, estimator, s.y, s.u, s.segments, horizon, um, u_ff,
-                                        thm, refs, reference_method, alpha_lower, s.stamps, rc))
+                                        thm, refs, reference_method, alpha_lower, s.stamps, rc, inflation))
     return out

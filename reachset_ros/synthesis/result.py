@@ -1,5 +1,8 @@
 """The synthesis result of one joint (:class:`JointResult`) and how it is finalised.
 
+With ``inflation > 0`` (the monitor checks the sets scaled by ``1 + inflation``) the reported
+``R_e`` and ``R_u`` are those of the scaled sets; the stored ``alpha`` stay the identified ones.
+
 :func:`finalize` turns the search's optimum into the reported result: the sets are made sound
 in floating point (:func:`reachset_ros.conformance.make_sound`), the final ``R_e`` and ``R_u``
 (plus the reference error of Appendix B, by :class:`~reachset_ros.synthesis.reference_error.ReferenceMethod`)
@@ -56,6 +59,7 @@ class JointResult:
     evaluations: int = 0
     seconds: float = 0.0
     eso_input: str = "previous"
+    inflation: float = 0.0          # R_e, R_u are for the sets scaled by 1 + inflation
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
     separate: object = None
@@ -90,6 +94,7 @@ class JointResult:
              "worst_margin": float(self.worst_margin),
              "soundness_inflation": float(self.soundness_inflation),
              "spectral_radius": float(self.spectral_radius), "reference_error": self.reference,
+             "inflation": float(self.inflation),
              "evaluations": int(self.evaluations), "seconds": round(float(self.seconds), 4)}
         if self.notes:
             d["notes"] = list(self.notes)
@@ -107,7 +112,8 @@ def finalize(problem, space, values, alpha, mode, evaluations=0, t0=None, notes=
     aw, av, bump = cf.make_sound(pb.plant, pb.thm, pb.devs, c_w, c_v, aw, av)
     obs, ctrl = space.build(values)
     cl = close_loop(pb.plant, obs, ctrl)
-    an = analyze(cl, aw, av, u_ff=0.0)
+    # R_e and R_u of the sets the monitor checks: W, V scaled by 1 + inflation (JointSets.xi)
+    an = analyze(cl, pb.set_scale * aw, pb.set_scale * av, u_ff=0.0)
     if not an.stable:
         raise InfeasibleError(f"joint {pb.name}: the chosen closed loop is not stable ({an.stability.message})")
     refd = {"method": int(pb.reference_method)}
@@ -157,4 +163,5 @@ def finalize(problem, space, values, alpha, mode, evaluations=0, t0=None, notes=
         worst_margin=float(res_check.worst_margin) if res_check else float("nan"),
         soundness_inflation=float(bump),
         spectral_radius=float(an.stability.spectral_radius), evaluations=evaluations,
-        seconds=0.0 if t0 is None else time.perf_counter() - t0, eso_input=space.eso_input, notes=list(notes))
+        seconds=0.0 if t0 is None else time.perf_counter() - t0, eso_input=space.eso_input,
+        inflation=float(pb.inflation), notes=list(notes))

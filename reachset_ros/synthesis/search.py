@@ -2,7 +2,8 @@
 
 * For fixed ``theta`` the closed loop is fixed; the interval-hull radii of the sound outer
   invariant sets are linear in ``alpha`` (:func:`reachset_ros.systems.closedloop.radius_coefficients`):
-  ``||R_e|| = c_e . alpha`` and ``radius(R_u) = c_u . alpha``. The inner problem is the
+  ``||R_e|| = c_e . alpha`` and ``radius(R_u) = c_u . alpha`` (both times ``1 + inflation``
+  when the monitor checks inflated sets: the guarantee is for those). The inner problem is the
   linear programme ``min c_e . alpha  s.t.  G alpha >= h,  c_u . alpha <= u_max - u_ff - ref``
   (HiGHS; :meth:`reachset_ros.synthesis.problem.AlphaPolytope.minimize`), evaluated and cached
   per ``theta`` by :class:`Evaluator` (:class:`Evaluation`).
@@ -139,8 +140,10 @@ class Evaluator:
         Kw, Kv, ne, ref = ld.Kw, ld.Kv, ld.ne, ld.ref
         ref_norm = ref.norm if ref is not None else 0.0
         ref_u = ref.u_bound if ref is not None else 0.0
-        ce = 2.0 * np.concatenate([Kw[:ne].sum(axis=0), Kv[:ne].sum(axis=0)])
-        cu = np.concatenate([Kw[ne], Kv[ne]])
+        # the guarantee is for the sets the monitor checks: alpha scaled by 1 + inflation
+        s = pb.set_scale
+        ce = s * (2.0 * np.concatenate([Kw[:ne].sum(axis=0), Kv[:ne].sum(axis=0)]))
+        cu = s * np.concatenate([Kw[ne], Kv[ne]])
         room = pb.u_max - pb.u_ff - ref_u
         rhs = room - U_MARGIN * pb.u_max
         if self.alpha_fixed is not None:
