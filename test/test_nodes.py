@@ -253,8 +253,8 @@ def _ns(m):
 
 
 def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_it(ros, tmp_path):
-    """An active /safe_stop while the simulated arm (realistic model error and friction)
-    tracks a moving reference. What controller_node promises (``braking_input``,
+    """Category 2 (``stop_category: 2``, no holding brakes): an active /safe_stop while the
+    simulated arm (realistic model error and friction) tracks a moving reference. What controller_node promises (``braking_input``,
     ``hold_position``): from the first braking tick on, u_p = clip(64 (q_hold - q^) -
     16 q^d, +-U_p) with q_hold = q^ + q^d |q^d| / U_p fixed at that tick. Checked from
     /observer/estimate, /plant_input, /effort_commands and /joint_states: every input is
@@ -283,7 +283,7 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     procs = [launch.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
              launch.start("reference_node", {"seed": 2}, tmp_path),
              launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", dict(common, wait_for_monitor=True), tmp_path)]
+             launch.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2), tmp_path)]
     try:
         js = rec.msgs["joint_states"]
 

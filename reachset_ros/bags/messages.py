@@ -39,8 +39,11 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 STATUS_TYPE = "reachset_msgs/msg/ConformanceStatus"
 SAFE_STOP_TYPE = "reachset_msgs/msg/SafeStop"
 FAULT_ONSET_TYPE = "std_msgs/msg/Header"
+#: The controller's holding-brake command (category-1 safe stop), with every effort command.
+BRAKE_TOPIC = "/brake_command"
+BRAKE_TYPE = "reachset_msgs/msg/BrakeCommand"
 REACHSET_MSGS = ("PlantInput", "JointReference", "JointEstimate", "ConformanceStatus",
-                 "SafeStop", "JointSynthesis", "SynthesisResult")
+                 "SafeStop", "JointSynthesis", "SynthesisResult", "BrakeCommand")
 
 
 def _msg_dirs():

@@ -19,8 +19,15 @@ of braking, the transient (``settling_ticks`` of each joint's closed loop,
 :func:`~reachset_ros.systems.closedloop.settling_ticks`) is reported with the stamps it
 spans (``transient_start_ns``, ``transient_end_ns``), during which the tracking error is not
 claimed to lie in R*_e. On an active
-``/safe_stop`` it switches to a braking law that brings the joints to rest within U_p and
-holds them; only a cleared stop gives control back. With ``wait_for_monitor`` it also
+``/safe_stop`` it carries out the stop of :mod:`reachset_ros.systems.stopping` (the one stop
+law, :func:`~reachset_ros.systems.stopping.stop_tick`): a controlled stop within U_p and, in
+category 1 (``stop_category``, the default), each joint's holding brake engaged on
+``/brake_command`` when the joint is at rest or the controlled stop cannot decelerate it
+(``stop_max_time``, ``stop_max_travel``); only a cleared stop releases the brakes and gives
+control back. An estimate it cannot use (non-finite, a joint missing) engages every brake
+at once and latches a stop of its own (``no usable estimate``, logged, on ``/diagnostics``)
+until the monitor's stop is cleared; the effort command of such a tick holds the last usable
+position (u_p = 0), so the drives always get a command. With ``wait_for_monitor`` it also
 holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
 the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
@@ -32,7 +39,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from reachset_msgs.msg import JointEstimate, JointReference, PlantInput, SafeStop
+from reachset_msgs.msg import BrakeCommand, JointEstimate, JointReference, PlantInput, SafeStop
 from std_msgs.msg import Float64MultiArray
 
 from ..conformance import model as mdl
@@ -42,22 +49,11 @@ from ..systems import closedloop
 from ..systems.closedloop import FeedbackLaw
 from ..systems.gains import check_gains
 from ..systems.plant import lwa4p_joint_plant
+from ..systems.stopping import StopPolicy, StopState, braking_input, hold_position, stop_tick   # noqa: F401
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
-
-
-def braking_input(q, qd, q_hold, u_max, omega=8.0, zeta=1.0):
-    """Braking law: a PD on the hold position, saturated to U_p (rad/s^2)."""
-    u = omega ** 2 * (q_hold - q) - 2 * zeta * omega * qd
-    return np.clip(u, -u_max, u_max)
-
-
-def hold_position(q, qd, u_max):
-    """Where the braking law holds the joints: the stopping point at half the admissible
-    deceleration, q + qd |qd| / u_max."""
-    return q + qd * np.abs(qd) / (2 * 0.5 * u_max)
 
 
 def u_max_array(value, n):
@@ -98,6 +94,18 @@ class ControllerNode(Node):
                                desc("hold the joints (braking law) until the first /safe_stop message; the monitor "
                                     "publishes its state, latched, when it starts, so a (re)started controller "
                                     "never moves the arm before it knows whether a safe stop is latched"))
+        self.declare_parameter("stop_category", 1, desc("safe-stop category (IEC 60204-1): 1 = controlled stop, then "
+                                                        "the holding brakes; 2 = controlled stop, held by the "
+                                                        "braking law", 1, 2, integer=True))
+        self.declare_parameter("stop_max_time", StopPolicy.max_time,
+                               desc("category 1: a joint still moving this long (s) after the stop began is braked",
+                                    1e-3, 60.0))
+        self.declare_parameter("stop_max_travel", StopPolicy.max_travel,
+                               desc("category 1: a joint farther than this (rad) from where the stop began is braked",
+                                    1e-4, 10.0))
+        self.declare_parameter("rest_velocity", StopPolicy.rest_velocity,
+                               desc("|qd| below which a joint is at rest, rad/s (category 1: its brake engages)",
+                                    1e-5, 1.0))
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         self.dt = float(self.get_parameter("dt").value)
@@ -121,9 +129,11 @@ class ControllerNode(Node):
         self.refs = {}
         self.stop_active = False
         self.stop_known = not self.get_parameter("wait_for_monitor").value
-        self.q_hold = None
+        self.stop = None             # StopState of the stop in progress (None while tracking)
+        self.own_stop = None         # reason of a stop latched by this node (no usable estimate)
+        self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
-                         "braking_ticks": 0, "reference_out_of_class": 0}
+                         "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0}
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
         self.flagged = False             # the previous tick's reference was out of class
@@ -131,6 +141,7 @@ class ControllerNode(Node):
         self.last_ref = None         # the newest usable reference (stamp, (q_d, qd_d, qdd_d))
         self.effort_pub = self.create_publisher(Float64MultiArray, "effort_commands", TICK_QOS)
         self.input_pub = self.create_publisher(PlantInput, "plant_input", TICK_QOS)
+        self.brake_pub = self.create_publisher(BrakeCommand, "brake_command", TICK_QOS)
         self.create_subscription(JointEstimate, "observer/estimate", self.on_estimate, TICK_QOS)
         self.create_subscription(JointReference, "reference", self.on_reference, TICK_QOS)
         self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
@@ -149,8 +160,13 @@ class ControllerNode(Node):
         new_flags = n_flagged - self.out_of_class_reported
         self.out_of_class_reported = n_flagged
         tr = self.transient
-        if self.stop_active:
-            st.level, st.message = DiagnosticStatus.ERROR, "safe stop: braking and holding"
+        if self.own_stop is not None:
+            st.level, st.message = DiagnosticStatus.ERROR, f"stopped by the controller: {self.own_stop}; brakes engaged"
+        elif self.stop_active:
+            engaged = int(self.stop.engaged.sum()) if self.stop is not None else 0
+            st.level = DiagnosticStatus.ERROR
+            st.message = (f"safe stop (category {self.policy().category}): braking; "
+                          f"{engaged} of {len(self.joints)} holding brakes engaged")
         elif not self.stop_known:
             st.level, st.message = DiagnosticStatus.WARN, "holding: no /safe_stop state from the monitor yet"
         elif new_flags:
@@ -291,7 +307,48 @@ class ControllerNode(Node):
         self.stop_known = True
         self.stop_active = active
         if not self.stop_active:
-            self.q_hold = None
+            self.stop = None            # the brakes are released with the next command
+            if self.own_stop is not None:
+                self.get_logger().info(f"the controller's own stop ({self.own_stop}) is cleared with the reset")
+            self.own_stop = None
+
+    def policy(self):
+        """The :class:`StopPolicy` of the current parameters."""
+        return StopPolicy(category=int(self.get_parameter("stop_category").value),
+                          rest_velocity=float(self.get_parameter("rest_velocity").value),
+                          max_time=float(self.get_parameter("stop_max_time").value),
+                          max_travel=float(self.get_parameter("stop_max_travel").value))
+
+    def publish_brakes(self, header_stamp):
+        """``/brake_command`` with every effort command: engaged brakes of the stop in progress."""
+        b = BrakeCommand()
+        b.header.stamp = header_stamp
+        b.name = list(self.joints)
+        engaged = self.stop.engaged if self.stop is not None else np.zeros(len(self.joints), bool)
+        b.engage = [bool(x) for x in engaged]
+        if self.stop is not None and self.stop.reasons:
+            _, j, why = self.stop.reasons[-1]
+            b.reason = f"{self.joints[j]}: {why}"
+        self.brake_pub.publish(b)
+
+    def unusable_estimate(self, msg, what):
+        """An estimate the controller cannot use: every brake engages, a stop of its own latches."""
+        self.counters["bad_estimate"] += 1
+        stamp = stamp_ns(msg.header.stamp)
+        if self.stop is None:
+            self.stop = StopState(len(self.joints))
+        before = int(self.stop.engaged.sum())
+        self.stop.engage_all(stamp, "no usable estimate")
+        self.counters["brakes_engaged"] += len(self.joints) - before
+        if self.own_stop is None:
+            self.own_stop = f"no usable estimate at stamp {stamp} ({what})"
+            self.get_logger().error(f"stop: {self.own_stop}; all holding brakes engaged until the safe stop is reset")
+            self.publish_diagnostics()
+        if self.last_q is not None:     # hold where the arm was last seen (u_p = 0, at rest)
+            self.publish_command(msg.header.stamp, self.last_q, np.zeros(len(self.joints)),
+                                 np.zeros(len(self.joints)))
+        else:
+            self.publish_brakes(msg.header.stamp)
 
     def reference_at(self, stamp, late=False):
         """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; when it has not arrived and
@@ -325,7 +382,7 @@ class ControllerNode(Node):
         two come from different nodes, in either order). An estimate whose reference has not
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
-        braking = self.stop_active or not self.stop_known
+        braking = self.stop_active or not self.stop_known or self.own_stop is not None
         if not late and not braking and stamp not in self.refs:
             if self.waiting is not None and self.waiting[0] < stamp:
                 _, old, _ = self.waiting
@@ -338,21 +395,31 @@ class ControllerNode(Node):
         idx = {n: i for i, n in enumerate(msg.name)}
         n = len(msg.name)
         if any(j not in idx for j in self.joints) or len(msg.position) < n or len(msg.velocity) < n:
-            self.counters["bad_estimate"] += 1
+            self.unusable_estimate(msg, "a joint missing or short arrays")
             return
         sel = [idx[j] for j in self.joints]
         q = np.array([msg.position[i] for i in sel], dtype=np.float64)
         qd = np.array([msg.velocity[i] for i in sel], dtype=np.float64)
         d = np.array([msg.disturbance[i] if i < len(msg.disturbance) else 0.0 for i in sel], dtype=np.float64)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(d))):
-            self.counters["bad_estimate"] += 1
+            self.unusable_estimate(msg, "non-finite values")
             return
+        self.last_q = q
         u_max = self.u_max
         if braking:
             self.counters["braking_ticks"] += 1
-            if self.q_hold is None:
-                self.q_hold = hold_position(q, qd, u_max)
-            u = braking_input(q, qd, self.q_hold, u_max)
+            if self.stop is None:
+                self.stop = StopState(len(self.joints))
+            before = int(self.stop.engaged.sum())
+            if self.stop_known and self.stop_active or self.own_stop is not None:
+                u, _ = stop_tick(self.policy(), self.stop, stamp, q, qd, u_max)
+            else:   # waiting for the monitor's state: hold with the braking law, no brakes
+                u, _ = stop_tick(StopPolicy(category=2), self.stop, stamp, q, qd, u_max)
+            now = int(self.stop.engaged.sum())
+            if now > before:
+                self.counters["brakes_engaged"] += now - before
+                for s, j, why in self.stop.reasons[before:]:
+                    self.get_logger().warning(f"holding brake of {self.joints[j]} engaged at stamp {s}: {why}")
         else:
             ref = self.reference_at(stamp, late)
             if ref is None:
@@ -364,6 +431,10 @@ class ControllerNode(Node):
             u = np.empty(len(self.joints))
             for i, j in enumerate(self.joints):
                 u[i] = self.law_input(j, q[i], qd[i], d[i], q_d[i], qd_d[i], qdd_d[i])
+        self.publish_command(msg.header.stamp, q, qd, u)
+
+    def publish_command(self, header_stamp, q, qd, u):
+        """``/plant_input`` u_p, ``/brake_command`` and ``/effort_commands`` tau = M(q) u_p + psi(q, qd)."""
         # full-robot feedback linearization: joints not controlled here get u_p = 0
         qf = np.zeros(self.robot.nv)
         qdf = np.zeros(self.robot.nv)
@@ -371,10 +442,11 @@ class ControllerNode(Node):
         qf[self.idx], qdf[self.idx], uf[self.idx] = q, qd, u
         tau = robot.feedback_linearization(self.robot, self.data, qf, qdf, uf)[self.idx]
         pi = PlantInput()
-        pi.header.stamp = msg.header.stamp
+        pi.header.stamp = header_stamp
         pi.name = list(self.joints)
         pi.acceleration = [float(x) for x in u]
         self.input_pub.publish(pi)
+        self.publish_brakes(header_stamp)       # before the effort: the simulator steps on the effort
         self.effort_pub.publish(Float64MultiArray(data=[float(x) for x in tau]))
 
 

@@ -6,7 +6,11 @@ time, anchored to the wall clock at start); applies the latest ``/effort_command
 lockstep mode (``lockstep_timeout`` > 0, the default) a tick waits, up to that timeout,
 for the command computed from the previous measurement, so that DDS latency on a loaded
 machine does not add delays the model does not have; the stamps stay on the simulation
-clock. With 0 it runs free like a real drive and holds the last command. Faults are
+clock. With 0 it runs free like a real drive and holds the last command. ``/brake_command``
+(reachset_msgs/BrakeCommand, by joint name) engages and releases the simulated holding
+brakes; the simulated arm also has hard stops at the URDF's position limits and clamps
+torques to its effort limits (:mod:`reachset_ros.sim.simulator`): each such event, an
+invalid command and each brake engagement is logged. Faults are
 injected through the ``fault`` parameters (``none`` clears them all); the stamp of the
 first measurement a fault can change is published, latched, on ``/sim/fault_onset``
 (std_msgs/Header, frame_id = the fault's description). With ``publish_clock`` (the
@@ -21,6 +25,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from reachset_msgs.msg import BrakeCommand
 from std_msgs.msg import Float64MultiArray, Header
 
 from ..sim import simulator as sim
@@ -85,6 +90,8 @@ class SimNode(Node):
                           if self.get_parameter("publish_clock").value else None)
         self.onset_pub = self.create_publisher(Header, "sim/fault_onset", SAFE_STOP_QOS)
         self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
+        self.create_subscription(BrakeCommand, "brake_command", self.on_brakes, TICK_QOS)
+        self.reported = dict(self.arm.counters)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.dt = dt
         self.next_wall = time.monotonic() + dt
@@ -94,12 +101,32 @@ class SimNode(Node):
 
     def on_effort(self, msg):
         tau = np.asarray(msg.data, dtype=np.float64)
-        if tau.shape != (len(self.names),) or not np.all(np.isfinite(tau)):
+        if tau.shape != (len(self.names),):
             self.counters["bad_effort"] += 1
             return
+        # a non-finite command goes to the simulated drives, which refuse it and engage every
+        # brake (a drive fault), as a real drive would; it is not silently replaced here
         self.tau = tau
         self.fresh = True
         self.tick()  # the awaited command is here: step now if the period is due
+
+    def on_brakes(self, msg):
+        """Engage/release the holding brakes of the named joints (others unchanged)."""
+        if len(msg.engage) != len(msg.name):
+            self.counters["bad_brake_command"] = self.counters.get("bad_brake_command", 0) + 1
+            return
+        want = self.arm.brakes
+        for n, e in zip(msg.name, msg.engage):
+            if n in self.names:
+                want[self.names.index(n)] = bool(e)
+        if np.any(want != self.arm.brakes):
+            on = [self.names[i] for i in np.flatnonzero(want & ~self.arm.brakes)]
+            off = [self.names[i] for i in np.flatnonzero(~want & self.arm.brakes)]
+            self.get_logger().warning(f"holding brakes at stamp {self.arm.stamp(self.arm.state.k)}: "
+                                      + (f"engaged {', '.join(on)}" if on else "")
+                                      + ("; " if on and off else "") + (f"released {', '.join(off)}" if off else "")
+                                      + (f" ({msg.reason})" if msg.reason and on else ""))
+            self.arm.set_brakes(want)
 
     def on_set_parameters(self, params):
         for p in params:
@@ -147,13 +174,22 @@ class SimNode(Node):
         self.m = self.arm.step(self.tau)
         self.published_wall = time.monotonic()
         self.counters["ticks"] += 1
+        if self.arm.counters != self.reported:
+            for k, v in self.arm.counters.items():
+                if v > self.reported.get(k, 0) and k != "brake_engaged":
+                    self.get_logger().warning(f"simulated arm at stamp {self.m.stamp_ns}: {k} "
+                                              f"(now {v}; hard_stop: a joint reached a position limit, "
+                                              "torque_clamped: a command beyond the effort limits was clamped, "
+                                              "invalid_command: a non-finite command engaged every brake)")
+            self.reported = dict(self.arm.counters)
         self.publish(self.m)
 
     def close(self):
         """At shutdown: say how many steps held a stale command (lockstep timeouts)."""
         c = self.counters
         self.get_logger().info(f"ticks {c['ticks']}, steps with a stale command {c['stale_effort']}, "
-                               f"bad effort messages {c['bad_effort']}")
+                               f"bad effort messages {c['bad_effort']}; simulated arm: "
+                               + ", ".join(f"{k} {v}" for k, v in self.arm.counters.items()))
 
     def publish(self, m):
         if self.clock_pub is not None:

@@ -22,6 +22,17 @@ under the pending ``tau_{k-1}``, stores ``tau_k`` as pending and returns ``m_{k+
 ``Measurement.tau_applied`` is the motor torque that acted during ``[t_{k-1}, t_k)`` for
 ``m_k``, i.e. the torque acting from the reported state on.
 
+Hardware of a real arm the controller must respect (:class:`SimConfig`): joint position
+limits as hard stops (the URDF's limits; a joint reaching one stops there, its velocity
+into the stop is lost), the drives' torque limits (the URDF's effort limits; a larger or a
+non-finite command is clamped or refused and counted, never integrated), and per-joint
+holding brakes (:meth:`SimulatedArm.set_brakes`): an engaged brake acts on a moving joint
+as a Coulomb torque of ``brake_torque`` against its velocity and holds a joint at rest
+(a locked joint keeps its position and zero velocity; the holding torque is assumed to
+exceed the load, and the brake's reaction on the other joints within a substep is not
+modelled). A non-finite torque command is a drive fault: every brake engages. Counts are
+in :attr:`SimulatedArm.counters`.
+
 Effects the nominal model lacks, each configurable (:class:`SimConfig`) and seeded: true
 inertial parameters different from the controller's (:class:`~reachset_ros.robot.ModelError`),
 viscous and Coulomb friction, encoder quantization, bounded measurement noise. Faults
@@ -71,6 +82,12 @@ class SimConfig:
         bounded [rad], [rad/s] (0: off).
     start_ns : int
         Stamp of tick 0.
+    hard_stops : bool
+        Joint position limits (the robot's URDF limits) act as hard stops.
+    torque_limits : bool
+        Commands are clamped to the URDF's effort limits (counted ``torque_clamped``).
+    brake_torque : tuple or None
+        Holding-brake torque per joint [N m] (None: the URDF's effort limits).
     """
 
     robot: RobotModel = field(default_factory=load_model)
@@ -82,6 +99,9 @@ class SimConfig:
     position_noise: float = 0.0
     velocity_noise: float = 0.0
     start_ns: int = 1_000_000_000_000_000_000
+    hard_stops: bool = True
+    torque_limits: bool = True
+    brake_torque: tuple | None = None
 
     def __post_init__(self):
         if not self.dt > 0 or self.substeps < 1:
@@ -89,6 +109,10 @@ class SimConfig:
         for f in ("quantization", "position_noise", "velocity_noise"):
             if getattr(self, f) < 0:
                 raise ReachsetError(f"simulator: {f} must be >= 0")
+        if self.brake_torque is not None:
+            b = np.asarray(self.brake_torque, dtype=np.float64)
+            if b.shape != (self.robot.nv,) or not np.all(np.isfinite(b)) or np.any(b <= 0):
+                raise ReachsetError(f"simulator: brake_torque needs {self.robot.nv} finite values > 0")
 
     @classmethod
     def ideal(cls, robot: RobotModel | None = None, **kw) -> "SimConfig":
@@ -223,6 +247,9 @@ class SimState:
     rng: np.random.Generator
     last_q: np.ndarray = None
     last_qd: np.ndarray = None
+    brakes: np.ndarray = None      # holding brake engaged, per joint
+    locked: np.ndarray = None      # braked joint at rest (held), per joint
+    q_lock: np.ndarray = None      # where a locked joint is held
 
 
 class SimulatedArm:
@@ -248,6 +275,21 @@ class SimulatedArm:
         self.seed = int(seed)
         self._truth0 = self.config.true_robot()
         self.state: SimState | None = None
+        pm = self.config.robot.pin_model
+        cfg = self.config
+        n = self.config.robot.nv
+        lo, hi = np.array(pm.lowerPositionLimit[:n], float), np.array(pm.upperPositionLimit[:n], float)
+        ok = np.isfinite(lo) & np.isfinite(hi) & (lo < hi)
+        self.q_lower = np.where(ok & cfg.hard_stops, lo, -np.inf)
+        self.q_upper = np.where(ok & cfg.hard_stops, hi, np.inf)
+        eff = np.array(pm.effortLimit[:n], float)
+        eff_ok = np.isfinite(eff) & (eff > 0)
+        self.tau_limit = np.where(eff_ok & cfg.torque_limits, eff, np.inf)
+        self.brake_torque = (np.asarray(cfg.brake_torque, float) if cfg.brake_torque is not None
+                             else np.where(eff_ok, eff, 100.0))
+        #: hard_stop (a joint reaching a limit), torque_clamped (commands beyond the effort
+        #: limits), invalid_command (non-finite commands: the brakes engage), brake_engaged
+        self.counters = {"hard_stop": 0, "torque_clamped": 0, "invalid_command": 0, "brake_engaged": 0}
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -325,8 +367,30 @@ class SimulatedArm:
             tau_prev=tau0.copy(), tau_pending=tau0.copy(),
             substeps=self._stable_substeps(truth, data, q0), faults=[], truth=truth,
             data=data, payload_models={}, frozen={}, nan_left={},
-            rng=np.random.default_rng(self.seed))
+            rng=np.random.default_rng(self.seed), brakes=np.zeros(n, bool), locked=np.zeros(n, bool),
+            q_lock=np.zeros(n))
+        self.counters = dict.fromkeys(self.counters, 0)
         return self._measure()
+
+    def set_brakes(self, engage) -> None:
+        """Engage (True) or release (False) each joint's holding brake from the next substep.
+
+        ``engage``: bool per joint (or one bool for all). A joint whose brake is released is
+        free again; one whose brake engages is decelerated by ``brake_torque`` and held once
+        at rest.
+        """
+        st = self.state
+        if st is None:
+            raise ReachsetError("simulator: set_brakes() before reset()")
+        e = np.broadcast_to(np.asarray(engage, dtype=bool), (self.nv,))
+        self.counters["brake_engaged"] += int(np.sum(e & ~st.brakes))
+        st.locked &= e
+        st.brakes = e.copy()
+
+    @property
+    def brakes(self):
+        """Engaged holding brakes (bool per joint)."""
+        return self.state.brakes.copy()
 
     def inject(self, fault: Fault) -> int:
         """Add a fault (active from ``fault.start_s`` after reset); returns
@@ -374,6 +438,15 @@ class SimulatedArm:
         if st is None:
             raise ReachsetError("simulator: step() before reset()")
         tau = np.array(tau, dtype=np.float64).reshape(self.nv)
+        if not np.all(np.isfinite(tau)):
+            # a drive fault: the command is refused and every brake engages
+            self.counters["invalid_command"] += 1
+            self.set_brakes(True)
+            tau = st.tau_pending.copy()
+        over = np.abs(tau) > self.tau_limit
+        if np.any(over):
+            self.counters["torque_clamped"] += 1
+            tau = np.clip(tau, -self.tau_limit, self.tau_limit)
         q_k, qd_k = st.q.copy(), st.qd.copy()
         self._integrate(st, st.tau_pending)
         st.q_prev, st.qd_prev = q_k, qd_k
@@ -387,7 +460,10 @@ class SimulatedArm:
         :meth:`step` starts acting (it is already determined); no side effects."""
         st = copy.copy(self.state)
         st.q, st.qd = st.q.copy(), st.qd.copy()
+        st.brakes, st.locked, st.q_lock = st.brakes.copy(), st.locked.copy(), st.q_lock.copy()
+        counters = dict(self.counters)
         self._integrate(st, st.tau_pending)
+        self.counters = counters
         return st.q, st.qd
 
     @property
@@ -414,6 +490,18 @@ class SimulatedArm:
                 return pin.aba(pm, data, q, qd, tau_ext - fr.torque(qd)) + acc
 
             q, qd = st.q, st.qd
+            sliding = st.brakes & ~st.locked
+            if np.any(sliding):
+                # a braked joint at exactly zero velocity is at rest: held from now on
+                now = sliding & (qd == 0.0)
+                st.locked |= now
+                st.q_lock = np.where(now, q, st.q_lock)
+                sliding &= ~now
+                tau_b = np.where(sliding, -self.brake_torque * np.sign(qd), 0.0)
+                tau_ext = tau_ext + tau_b
+
+                def f(q, qd, tau_ext=tau_ext):       # noqa: F811 (with the brake torque)
+                    return pin.aba(pm, data, q, qd, tau_ext - fr.torque(qd)) + acc
             k1v, k1a = qd, f(q, qd)
             k2v = qd + 0.5 * h * k1a
             k2a = f(q + 0.5 * h * k1v, k2v)
@@ -423,6 +511,25 @@ class SimulatedArm:
             k4a = f(q + h * k3v, k4v)
             st.q = q + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
             st.qd = qd + h / 6.0 * (k1a + 2 * k2a + 2 * k3a + k4a)
+            self._constraints(st, q, qd, sliding)
+
+    def _constraints(self, st, q_before, qd_before, sliding):
+        """Brakes and hard stops after a substep: a sliding braked joint whose velocity
+        reached or crossed zero is at rest and held; held joints keep their position; a
+        joint beyond a position limit stops at it (its velocity into the stop is lost)."""
+        if np.any(sliding):
+            stopped = sliding & (st.qd * qd_before <= 0.0)
+            st.locked |= stopped
+            st.q_lock = np.where(stopped, st.q, st.q_lock)
+        if np.any(st.locked):
+            st.q = np.where(st.locked, st.q_lock, st.q)
+            st.qd = np.where(st.locked, 0.0, st.qd)
+        below, above = st.q < self.q_lower, st.q > self.q_upper
+        if np.any(below | above):
+            inside = (q_before > self.q_lower) & (q_before < self.q_upper)
+            self.counters["hard_stop"] += int(np.sum((below | above) & inside))   # arrivals at a stop
+            st.q = np.clip(st.q, self.q_lower, self.q_upper)
+            st.qd = np.where((below & (st.qd < 0)) | (above & (st.qd > 0)), 0.0, st.qd)
 
     def _physical_faults(self, st, t, tau):
         truth = self._truth0
