@@ -42,6 +42,13 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     fault, stop = res["fault_injected_ns"], res["safe_stop_ns"]
     assert fault is not None and stop is not None
     assert res["failures"] == [] and res["early_stop"] is None
+    # the stop held the arm (issue 19.1), judged from the bag: every joint at rest within the
+    # stated time and travel (before: joint 1 ran away under the 30 rad/s^2 fault, 486 rad)
+    eff = res["stop_effect"]
+    assert eff["failures"] == [] and eff["seconds_after_stop"] >= 3.0, eff
+    assert all(j["rest_s"] is not None and j["rest_s"] <= eff["rest_within_s"]
+               and j["travel_rad"] <= eff["travel_within_rad"] and j["finite"] for j in eff["joints"].values()), eff
+    assert eff["brakes_engaged"] and all(eff["brakes_engaged"].values()), eff
     # the gains were synthesised for the inflation the monitor checks: R*_u inside U_p holds for
     # the monitored sets (before: the demo's monitor ran with inflation 1.0, certified to ~1e-4)
     assert res["inflation"] == 1.0 and res["inflation_is_certified"] is True, res["inflation_certified"]

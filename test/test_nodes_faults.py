@@ -805,20 +805,48 @@ class TestControllerNode:
         assert ok, why
         assert proc.alive()
 
-    def test_unusable_estimates_are_skipped_and_references_ignored_counted(self, bus, controller):
+    def test_unusable_estimates_stop_with_brakes_references_ignored_counted(self, bus, controller):
+        """An estimate the controller cannot use (a joint missing, a short array, a non-finite
+        value) is a stop of the controller's own (issue 19.2; before: skipped, no output, the
+        simulator stepping on a stale command): every holding brake engages on
+        /brake_command, the effort holds the last usable position (u_p = 0), the diagnostics
+        say why, and only a cleared /safe_stop gives control back. A reference it cannot use
+        is treated as none (hold the measured position), counted."""
+        from reachset_msgs.msg import BrakeCommand
         proc, _, _ = controller
         bus.clear()
         name = "reachset_ros: controller"
         before = bus.counters(name)
-        # estimates: a joint missing, a short velocity array, a non-finite value -> no output
-        bad = stamps(3)
-        for t, est in zip(bad, [JointEstimate(name=[JOINTS[0]], position=[0.1], velocity=[0.0]),
-                                JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0]),
-                                JointEstimate(name=JOINTS, position=[0.1, math.nan], velocity=[0.0, 0.0])]):
-            to_stamp(est.header.stamp, t)
-            bus.est.publish(est)
-        assert_law(bus, tracking_law(10.0, 1.0))   # processed after the bad ones
-        assert not outputs(bus, bad)
+        brakes = []
+        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+        try:
+            assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1, 30)
+            assert_law(bus, tracking_law(10.0, 1.0))
+            assert bus.wait(lambda: any(not any(b.engage) for b in list(brakes)), 15)   # released while tracking
+            bad = stamps(3)
+            for t, est in zip(bad, [JointEstimate(name=[JOINTS[0]], position=[0.1], velocity=[0.0]),
+                                    JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0]),
+                                    JointEstimate(name=JOINTS, position=[0.1, math.nan], velocity=[0.0, 0.0])]):
+                to_stamp(est.header.stamp, t)
+                bus.est.publish(est)
+            assert bus.wait(lambda: len(outputs(bus, bad)) == 3, 15), outputs(bus, bad)
+            assert all(np.array_equal(u, [0.0, 0.0]) for u in outputs(bus, bad).values())
+            assert bus.wait(lambda: any(stamp_ns(b.header.stamp) == bad[0] and all(b.engage) for b in list(brakes)))
+            diag = bus.wait(lambda: "no usable estimate" in bus.diags.get(name, ("", "", {}, 0))[1], 15)
+            assert diag, bus.diags.get(name)
+            assert "no usable estimate" in proc.log.read_text()
+            # still stopped: a good estimate gets the braking law, brakes stay engaged
+            got = drive(bus, stamps(2))
+            assert got and all(np.array_equal(u, [0.0, 0.0]) for u in got.values()), got
+            # the reset (a cleared /safe_stop) releases the brakes and gives control back
+            stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: reset"))
+            assert bus.wait(lambda: outputs_match(drive(bus, stamps(1)), tracking_law(10.0, 1.0)), 15)
+            assert not any(list(brakes)[-1].engage)
+        finally:
+            bus.listener.destroy_subscription(bsub)
+            bus.caller.destroy_publisher(stop_pub)
         # references: a joint missing, a non-finite value, a short array -> treated as none:
         # hold the measured position (u = -2 zeta omega qd)
         qd = np.array([0.3, -0.1])

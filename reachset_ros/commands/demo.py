@@ -16,10 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bags.messages import FAULT_ONSET_TOPIC, SAFE_STOP_TOPIC, STATUS_TOPIC
+from ..bags.messages import BRAKE_TOPIC, FAULT_ONSET_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC, STATUS_TOPIC
 from ..bags.series import read_messages
 from ..errors import ReachsetError
 from ..plots import demo_plots
+from ..sim.safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
+from ..systems.stopping import rest_after_stop
 from . import emit
 
 NAME = "demo"
@@ -92,6 +94,8 @@ def story_failures(s, fault_expected):
         out.append("the fault was not injected")
     elif fault_expected and s["safe_stop_ns"] is None:
         out.append("no safe stop after the fault")
+    if s.get("stop_effect"):
+        out += ["the arm did not come to rest: " + f for f in s["stop_effect"]["failures"]]
     return out
 
 
@@ -141,11 +145,36 @@ def summarize(res, record, workdir):
                                                    .get("joints", {}).items())},
         "second_iteration_failed": res.get("second_iteration_failed"),
     }
+    out["stop_effect"] = stop_effect(record, stop_ns) if stop_ns is not None else None
     try:
         out["plots"], out["tracking"] = demo_plots(res, record, workdir)
     except Exception as e:  # plots are a convenience; never fail the demo for them
         out["plots_error"] = f"{type(e).__name__}: {e}"
     return out
+
+
+def stop_effect(record, stop_ns):
+    """How the arm came to rest after the safe stop, read from the monitored bag's
+    ``/joint_states`` (:func:`reachset_ros.systems.stopping.rest_after_stop`), against what the
+    README states for a category-1 stop (:data:`reachset_ros.sim.safe_stop.REST_WITHIN_S`,
+    :data:`~reachset_ros.sim.safe_stop.TRAVEL_WITHIN_RAD`), and the brakes engaged (``/brake_command``)."""
+    t, q, qd, names, brakes = [], [], [], None, None
+    for topic, _, m in read_messages([record], (JOINT_STATES, BRAKE_TOPIC)):
+        st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        if topic == JOINT_STATES:
+            names = names or list(m.name)
+            t.append(st)
+            q.append(list(m.position))
+            qd.append(list(m.velocity))
+        elif st >= stop_ns:
+            brakes = dict(zip(m.name, (bool(e) for e in m.engage)))
+    if not t or max(t) < stop_ns:
+        return {"failures": ["no /joint_states after the safe stop in the bag"]}
+    order = np.argsort(t, kind="stable")
+    rep = rest_after_stop(names, np.array(t)[order], np.array(q, float)[order], np.array(qd, float)[order], stop_ns)
+    return {"joints": rep.as_dict(), "seconds_after_stop": rep.seconds_after, "rest_within_s": REST_WITHIN_S,
+            "travel_within_rad": TRAVEL_WITHIN_RAD, "brakes_engaged": brakes,
+            "failures": rep.failures(REST_WITHIN_S, TRAVEL_WITHIN_RAD)}
 
 
 def human_summary(s):
@@ -178,6 +207,15 @@ def human_summary(s):
                      f"{s['safe_stop']['reason']}")
     else:
         lines.append("no safe stop")
+    eff = s.get("stop_effect")
+    if eff and "joints" in eff:
+        lines.append(f"after the stop (from the bag's /joint_states, {eff['seconds_after_stop']:.3g} s): "
+                     + ", ".join(f"{n} at rest after {j['rest_s']:.3g} s, {j['travel_rad']:.3g} rad"
+                                 if j["rest_s"] is not None else f"{n} NOT at rest"
+                                 for n, j in eff["joints"].items())
+                     + f" (stated: within {eff['rest_within_s']:g} s and {eff['travel_within_rad']:g} rad)"
+                     + (f"; holding brakes engaged: {sum(eff['brakes_engaged'].values())} of "
+                        f"{len(eff['brakes_engaged'])}" if eff.get("brakes_engaged") else ""))
     if s.get("plots"):
         lines.append("plots: " + ", ".join(s["plots"]))
     lines.append(f"recorded: {s['record']}   logs: {s['workdir']}")

@@ -40,7 +40,8 @@ CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimat
 #: the loaded 2-core machine once gave 6 such steps and sets 40x larger); below the monitor's
 #: watchdog limit (125 ticks = 0.5 s) so that a stall is not taken for missing data
 LOCKSTEP_TIMEOUT = 0.3
-MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset"]
+MONITOR_TOPICS = CORE_TOPICS + ["/conformance/status", "/safe_stop", "/diagnostics", "/sim/fault_onset",
+                                 "/brake_command"]
 #: the gains the demo starts with (observer and controller parameters, one value for all joints)
 INITIAL_GAINS = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
                  "h1": [15.0], "h2": [30.0], "eps": [0.01]}

@@ -11,7 +11,7 @@ then it is ``<output>.partial``.
 """
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
+from reachset_msgs.msg import BrakeCommand, ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
@@ -28,6 +28,7 @@ TOPICS = {
     "/safe_stop": (SafeStop, "reachset_msgs/msg/SafeStop"),
     "/diagnostics": (DiagnosticArray, "diagnostic_msgs/msg/DiagnosticArray"),
     "/sim/fault_onset": (Header, "std_msgs/msg/Header"),
+    "/brake_command": (BrakeCommand, "reachset_msgs/msg/BrakeCommand"),
 }
 
 
