@@ -354,7 +354,10 @@ def monitor(bus, tmp_path_factory):
     """A monitor_node process for one test class (the next class may start its own)."""
     d = tmp_path_factory.mktemp("monitor")
     path = write_model(d / "m.yaml")
-    proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+    # reset_clean_ticks 0: the tests reset the latched stop as a set-up step, with no data
+    # flowing; the rule that a reset waits until the stop's condition has cleared is tested
+    # by TestResetNeedsClearedCondition
+    proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000, "reset_clean_ticks": 0,
                                          "window_dir": str(d / "windows")}, d)
     try:
         assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
@@ -679,9 +682,12 @@ class TestMonitorNode:
 Q_TEST = np.array([0.1, -0.2])
 
 
-def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False):
+def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2):
+    """A controller_node for these tests: category 2 by default (the braking law's output is
+    what they check; the holding brakes of category 1 are tested in test_stopping.py and
+    test_nodes.py)."""
     params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0],
-              "wait_for_monitor": wait_for_monitor}
+              "wait_for_monitor": wait_for_monitor, "stop_category": stop_category}
     if model is not None:
         params["model_file"] = str(model)
     return launch.start("controller_node", params, d)
@@ -1013,3 +1019,46 @@ class TestSafeStopLatch:
 
 def outputs_match(got, expected):
     return bool(got) and all(np.allclose(u, expected, rtol=0, atol=1e-9) for u in got.values())
+
+
+class TestResetNeedsClearedCondition:
+    def test_reset_is_refused_until_clean_data_were_checked_to_the_horizon(self, bus, tmp_path):
+        """Issue 19.2: ``~/reset`` clears a stop only once its condition has cleared: the
+        monitor keeps checking while stopped and needs ``reset_clean_ticks`` (default k* + 1)
+        consecutive ticks checked to k*, conformant, with no fault, and fresh data. Before:
+        any reset succeeded at once, whatever the data (a reset straight after a NaN sample
+        resumed the arm on a stream that had just failed)."""
+        path = write_model(tmp_path / "m.yaml")
+        proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+                                             "window_dir": str(tmp_path / "windows")}, tmp_path)
+        try:
+            assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
+                            and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+            bus.clear()
+            Y, U = stream(60, seed=21)
+            Y[50, 1] = math.nan
+            bus.send_ticks(stamps(60), Y, U)
+            assert bus.wait(lambda: bus.active_stops(), 15)
+            assert bus.active_stops()[0].kind == "invalid_sample"
+            r = bus.call_trigger("/monitor_node/reset")
+            assert not r.success and "has not cleared" in r.message, r.message
+            # clean data checked to the horizon, but fewer than k* + 1 ticks of it: still refused
+            n_short = HISTORY + HORIZON + HORIZON // 2
+            Y, U = stream(n_short, seed=22)
+            ts = stamps(n_short)
+            bus.send_ticks(ts, Y, U)
+            assert bus.wait(lambda: len(bus.statuses(ts)) == n_short, 20)
+            r = bus.call_trigger("/monitor_node/reset")
+            assert not r.success and f"of {HORIZON + 1} consecutive" in r.message, r.message
+            # enough clean, fully checked ticks: the reset clears the stop
+            n = HISTORY + 2 * (HORIZON + 1) + 5
+            Y, U = stream(n, seed=23)
+            ts = stamps(n)
+            bus.send_ticks(ts, Y, U)
+            assert bus.wait(lambda: len(bus.statuses(ts)) == n, 20)
+            r = bus.call_trigger("/monitor_node/reset")
+            assert r.success, r.message
+            assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset")
+            assert "reset refused" in proc.log.read_text() and proc.alive()
+        finally:
+            launch.stop([proc])

@@ -229,6 +229,13 @@ class MonitorNode(Node):
                                                                1, 10000, integer=True))
         self.declare_parameter("window_dir", "bags/safe_stop", desc("where offending windows are written"))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("reset_clean_ticks", -1,
+                               desc("~/reset clears an active stop only after this many consecutive ticks checked "
+                                    "to the horizon, all conformant, with no fault (the violating condition has "
+                                    "cleared); -1: the model's k* + 1; 0: reset unconditionally", -1, 100000,
+                                    integer=True))
+        self.clean_ticks = 0          # consecutive ticks checked to k*, conformant, no fault (since the last one that was not)
+        self.last_unclean = "no tick checked yet"
         self.core = None
         self.stop_active = False
         self.stop_msg = None
@@ -274,6 +281,7 @@ class MonitorNode(Node):
     def apply(self, core, model_id, path):
         self.core = core
         self.model_id = model_id
+        self.clean_ticks, self.last_unclean = 0, "no tick checked yet"
         self.last_tick_wall = None
         self.last_rx_wall.clear()
         self.first_rx_wall.clear()
@@ -323,9 +331,16 @@ class MonitorNode(Node):
     def handle_events(self, events):
         for ev in events:
             if isinstance(ev, FaultEvent):
+                self.clean_ticks, self.last_unclean = 0, f"{ev.kind} at stamp {ev.stamp}: {ev.reason}"
                 self.trigger(ev.stamp, ev.kind, ev.reason, ev.joint)
                 continue
             stamp, res = ev.stamp, ev.result
+            if ev.conformant and ev.longest >= self.core.model.horizon:
+                self.clean_ticks += 1
+            else:
+                self.clean_ticks = 0
+                self.last_unclean = (f"tick {stamp} not conformant" if "violation" in res["status"] else
+                                     f"tick {stamp} checked only up to step {ev.longest} of k*={self.core.model.horizon}")
             self.last_tick_wall = time.monotonic()
             self.publish_status(ev)
             viol = [j for j, s in enumerate(res["status"]) if s == "violation"]
@@ -425,9 +440,29 @@ class MonitorNode(Node):
                          f"no complete /joint_states + /plant_input sample for {silent * 1000:.0f} ms "
                          f"(limit {limit * 1000:.0f} ms): " + "; ".join(detail))
 
+    def clean_needed(self):
+        n = int(self.get_parameter("reset_clean_ticks").value)
+        return (self.core.model.horizon + 1 if self.core is not None else 0) if n < 0 else n
+
     def on_reset(self, request, response):
+        """Clear the safe stop, only once its cause has cleared: the monitor keeps checking
+        while stopped (the held arm against the model), and a reset needs ``reset_clean_ticks``
+        consecutive ticks checked to k*, all conformant, no fault, the last one within the
+        missing-data limit (fresh data). Refused otherwise, with the reason (``success`` false)."""
         was = self.stop_active
+        need = self.clean_needed()
+        if was and need > 0:
+            limit = self.get_parameter("max_missing_ticks").value * self.get_parameter("dt").value
+            fresh = self.last_tick_wall is not None and time.monotonic() - self.last_tick_wall <= limit
+            if self.clean_ticks < need or not fresh:
+                why = (f"reset refused: the stop's condition has not cleared: {self.clean_ticks} of {need} "
+                       f"consecutive ticks checked to k* and conformant (last not: {self.last_unclean})"
+                       if fresh else "reset refused: no checked tick within the missing-data limit (no fresh data)")
+                self.get_logger().warning(why)
+                response.success, response.message = False, why
+                return response
         self.stop_active = False
+        self.clean_ticks, self.last_unclean = 0, "no tick checked since the reset"
         if self.core is not None:
             self.core.reset()
         self.last_tick_wall = None

@@ -10,14 +10,21 @@ and |qdd_d| <= qdd_max (the paper's U_ref), reproducible from ``seed``.
 ``hold`` (settable at run time): the move under way is finished and the reference then
 rests at its end point (velocity and acceleration 0) until ``hold`` is cleared; the moves
 then continue where they stopped (:class:`reachset_ros.sim.reference.ReferenceStream`).
+
+A safe stop (``/safe_stop`` active) is followed: while it lasts the reference is the arm's
+measured position at rest (q_d = q, qd_d = qdd_d = 0), so it does not run away from the held
+arm; when the stop is cleared (the monitor's reset) the stream is re-synchronised to the
+arm: it rests at the measured position for ``resume_rest`` s, then new moves start from
+there (:meth:`ReferenceStream.restart`), so tracking resumes with no jump.
 """
+import numpy as np
 from rclpy.node import Node
-from reachset_msgs.msg import JointReference
+from reachset_msgs.msg import JointReference, SafeStop
 from sensor_msgs.msg import JointState
 
 from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
 from ..robot.dynamics import JOINT_NAMES
-from .common import TICK_QOS, desc, spin_node, stamp_ns
+from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 
 
 class ReferenceNode(Node):
@@ -35,10 +42,46 @@ class ReferenceNode(Node):
         self.stream = ReferenceStream(ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value)))
         self.names = list(JOINT_NAMES)
         self.pub = self.create_publisher(JointReference, "reference", TICK_QOS)
+        self.declare_parameter("resume_rest", 1.0, desc("after a cleared safe stop: rest this long (s) at the arm's "
+                                                        "position before new moves", 0.0, 60.0))
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
+        self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
+        self.stopped = False         # a safe stop is active: the reference is the measured position
+        self.resync = False          # the stop was cleared: restart from the next measurement
+
+    def on_safe_stop(self, msg):
+        if msg.active and not self.stopped:
+            self.get_logger().warning(f"safe stop active ({msg.kind}): the reference holds the measured position")
+        if not msg.active and self.stopped:
+            self.resync = True
+        self.stopped = bool(msg.active)
+
+    def measured(self, msg):
+        """The measured positions in the generator's joint order, or None if unusable."""
+        idx = {n: i for i, n in enumerate(msg.name)}
+        n = len(self.stream.generator.q0)
+        if len(msg.position) < len(msg.name) or any(j not in idx for j in self.names[:n]):
+            return None
+        q = np.array([msg.position[idx[j]] for j in self.names[:n]], dtype=np.float64)
+        return q if np.all(np.isfinite(q)) else None
 
     def on_joint_states(self, msg):
-        q, qd, qdd = self.stream.at(stamp_ns(msg.header.stamp), bool(self.get_parameter("hold").value))
+        stamp = stamp_ns(msg.header.stamp)
+        q_meas = self.measured(msg) if (self.stopped or self.resync) else None
+        if self.stopped and q_meas is not None:
+            z = np.zeros(len(q_meas))
+            self.publish(msg, q_meas, z, z)
+            return
+        if self.resync and q_meas is not None:
+            rest = float(self.get_parameter("resume_rest").value)
+            self.stream.restart(stamp, q_meas, rest)
+            self.resync = False
+            self.get_logger().info(f"safe stop cleared: the reference restarts from the arm's position at stamp "
+                                   f"{stamp} (resting {rest:g} s, then new moves)")
+        q, qd, qdd = self.stream.at(stamp, bool(self.get_parameter("hold").value))
+        self.publish(msg, q, qd, qdd)
+
+    def publish(self, msg, q, qd, qdd):
         out = JointReference()
         out.header.stamp = msg.header.stamp
         out.name = self.names[:len(q)]

@@ -182,11 +182,13 @@ class ReferenceGenerator:
     >>> t, Q, QD, QDD = gen.trajectory(10.0)         # 250 Hz batch
     """
 
-    def __init__(self, config: ReferenceConfig | None = None, q0=None, seed: int = 0):
+    def __init__(self, config: ReferenceConfig | None = None, q0=None, seed: int = 0, q0_outside_box=False):
         self.config = config or ReferenceConfig()
         c = self.config
         q0 = 0.5 * (c.q_min + c.q_max) if q0 is None else _arr(q0, c.n, "q0")
-        if np.any(q0 < c.q_min - 1e-12) or np.any(q0 > c.q_max + 1e-12):
+        # q0_outside_box: a restart from where the arm is (after a safe stop it may be outside
+        # the box): the first move then goes back into the box
+        if not q0_outside_box and (np.any(q0 < c.q_min - 1e-12) or np.any(q0 > c.q_max + 1e-12)):
             raise ReachsetError(f"reference: q0 {np.round(q0, 4).tolist()} outside the position box")
         self.q0 = np.array(q0, dtype=np.float64)
         self.seed = int(seed)
@@ -295,9 +297,26 @@ class ReferenceStream:
         self.t0_ns = None
         self.paused = 0.0        # s of generator time skipped while holding
         self.hold_move = None    # the move whose end point a hold rests at
+        self.restarts = 0
+
+    def restart(self, stamp_ns: int, q, rest_s: float = 1.0):
+        """Re-synchronise to the arm: from ``stamp_ns`` the reference rests at ``q`` (the
+        arm's measured, held position) for ``rest_s``, then new moves start from there
+        (a generator seeded ``seed + restarts``, so a restart is reproducible). Used after a
+        safe stop is cleared: tracking resumes where the arm is, with no jump."""
+        g = self.generator
+        self.restarts += 1
+        self.generator = ReferenceGenerator(g.config, q0=np.asarray(q, dtype=np.float64), seed=g.seed + self.restarts,
+                                            q0_outside_box=True)
+        self.t0_ns = int(stamp_ns) + int(round(rest_s * 1e9))
+        self.paused = 0.0
+        self.hold_move = None
 
     def at(self, stamp_ns: int, hold: bool = False):
         """``(q_d, qd_d, qdd_d)`` for the measurement stamped ``stamp_ns``."""
+        if self.t0_ns is not None and stamp_ns < self.t0_ns:     # resting after a restart
+            z = np.zeros(self.generator.config.n)
+            return self.generator.q0.copy(), z, z.copy()
         if self.t0_ns is None:
             self.t0_ns = int(stamp_ns)
         tau = (int(stamp_ns) - self.t0_ns) * 1e-9 - self.paused
