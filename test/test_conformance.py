@@ -348,3 +348,20 @@ def test_model_file_weak_horizon_fields_and_old_files(tmp_path):
         "horizon_below_minimum: true", "horizon_below_minimum: maybe"))
     with pytest.raises(ReachsetError, match="horizon_below_minimum must be true or false"):
         mdl.load(tmp_path / "bad.yaml")
+
+
+def test_cli_identify_inflation_is_recorded_and_checked(tmp_path, lwa_data):
+    """``identify --inflation F`` (issue 19.3): the model's inflation without hand-editing the
+    YAML; it excludes --validate (which calibrates it); bad values exit 2 with one line."""
+    p, y1, u1 = lwa_data
+    bag = tmp_path / "b"
+    write_bag(bag, np.hstack([y1[:1500], y1[:1500]]), np.hstack([u1[:1500], u1[:1500]]),
+              ["arm_1_joint", "arm_2_joint"], T0 + DT_NS * np.arange(1500))
+    model = tmp_path / "m.yaml"
+    r = run_cli("identify", bag, "--horizon", "50", "--inflation", "0.5", "--out", model, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["inflation"] == 0.5 and mdl.load(model).inflation == 0.5
+    for bad, words in ((["--inflation", "-1"], "--inflation must be finite"),
+                       (["--inflation", "0.5", "--validate", str(bag)], "exclude each other")):
+        r = run_cli("identify", bag, "--horizon", "50", *bad)
+        assert r.returncode == 2 and words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -815,3 +815,74 @@ def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tm
         rec.close()
         ros.destroy_publisher(js_pub)
         ros.destroy_publisher(ref_pub)
+
+
+def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
+    """Issue 19.2 over real DDS, the whole suite (sim, reference, observer, controller,
+    monitor with a model identified on the nodes' code path, inflation 1 as the demo): a
+    30 rad/s^2 fault beyond u_max stops the arm (the monitor's violation, category-1 brakes);
+    the fault is cleared; ``~/reset`` is refused until the monitor has checked clean data to
+    the horizon, then clears the stop; the reference restarts from the held position and
+    tracking resumes with no new stop for 10 s (stamp time), the joints moving again.
+    Before: the reference kept moving while the arm braked, the resume jumped 0.5-3.8 rad and
+    a new stop fired 29-53 ms later (5 of 5 tries)."""
+    from reachset_ros.sim.recordings import DEFAULT_GAINS, simulate_arm_recordings, write_recordings
+    recs = simulate_arm_recordings(40.0, seed=4)
+    bag = tmp_path / "train"
+    write_recordings(bag, recs)
+    model = tmp_path / "model.yaml"
+    from reachset_ros import cli
+    assert cli.main(["identify", str(bag), "--inflation", "1.0", "--out", str(model)]) == 0
+    gains = {k: ([v] if isinstance(v, float) else v) for k, v in DEFAULT_GAINS.items()}
+    common = {"joints": ALL_JOINTS, **gains}
+    rec = Recorder("reset_listener", {"joint_states": JointState, "safe_stop": SafeStop,
+                                      "conformance/status": ConformanceStatus})
+    procs = [launch.start("sim_node", {"seed": 4, "realistic": True}, tmp_path),
+             launch.start("reference_node", {"seed": 4}, tmp_path),
+             launch.start("observer_node", common, tmp_path),
+             launch.start("controller_node", dict(common, wait_for_monitor=True), tmp_path),
+             launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
+                                           "window_dir": str(tmp_path / "windows")}, tmp_path)]
+    try:
+        js, stops, status = rec.msgs["joint_states"], rec.msgs["safe_stop"], rec.msgs["conformance/status"]
+        # running and checked to the horizon for 2 s
+        assert rec.wait(lambda: sum(1 for _, s in list(status) if s.conformant) > 500, 120), \
+            [p.log.read_text()[-800:] for p in procs]
+        assert not any(m.active for _, m in list(stops)), [m.reason for _, m in stops if m.active]
+        ok, why = set_remote_parameters(ros, "sim_node", {"fault_joint": "arm_1_joint", "fault_magnitude": 30.0,
+                                                          "fault": "acceleration"})
+        assert ok, why
+        assert rec.wait(lambda: any(m.active for _, m in list(stops)), 30)
+        stop = next(m for _, m in list(stops) if m.active)
+        assert stop.kind == "violation", stop.reason
+        ok, why = set_remote_parameters(ros, "sim_node", {"fault": "none"})
+        assert ok, why
+        cli_reset = ros.create_client(Trigger, "/monitor_node/reset")
+        assert cli_reset.wait_for_service(timeout_sec=10)
+        refused, reset_ok = [], False
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not reset_ok:
+            fut = cli_reset.call_async(Trigger.Request())
+            rclpy.spin_until_future_complete(ros, fut, timeout_sec=10)
+            r = fut.result()
+            reset_ok = bool(r and r.success)
+            if not reset_ok:
+                refused.append(r.message if r else "no answer")
+                time.sleep(0.3)
+        assert reset_ok, refused[-3:]
+        assert refused and "has not cleared" in refused[0]     # right after the stop: refused
+        assert rec.wait(lambda: not list(stops)[-1][1].active, 10)
+        t_reset = _ns(js[-1][1])
+        # 10 s of stamp time after the reset
+        assert rec.wait(lambda: _ns(js[-1][1]) >= t_reset + 10_000_000_000, 120)
+        new = [m for _, m in list(stops) if m.active and _ns(m) > t_reset]
+        assert not new, [m.reason for m in new]
+        after = [m for _, m in list(js) if _ns(m) > t_reset + 3_000_000_000]
+        assert max(max(abs(v) for v in m.velocity) for m in after) > 0.1        # tracking moves again
+        checked = [s for _, s in list(status) if _ns(s) > t_reset + 1_000_000_000]
+        assert checked and all(s.conformant for s in checked if s.active_test_cases == 126)
+        assert all(p.alive() for p in procs)
+        assert "restarts from the arm's position" in procs[1].log.read_text()
+    finally:
+        launch.stop(procs)
+        rec.close()

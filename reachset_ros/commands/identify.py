@@ -72,6 +72,9 @@ def add_arguments(p):
                    help="held-out bags: report violation rates and calibrate the model's inflation")
     p.add_argument("--inflation-grid", type=float, nargs="+", metavar="F",
                    help=f"inflations tried on the validation bags (default {' '.join(map(str, DEFAULT_GRID))})")
+    p.add_argument("--inflation", type=float, default=None, metavar="F",
+                   help="the model's inflation: the monitor checks the sets scaled by 1 + F (default 0; "
+                        "with --validate it is calibrated instead, so the two exclude each other)")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
                    help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
 
@@ -162,6 +165,11 @@ def run(args):
         raise ReachsetError("--fault-accel must be finite")
     if args.inflation_grid is not None and args.validate is None:
         raise ReachsetError("--inflation-grid needs --validate")
+    if args.inflation is not None:
+        if args.validate is not None:
+            raise ReachsetError("--inflation and --validate exclude each other (--validate calibrates the inflation)")
+        if not (np.isfinite(args.inflation) and args.inflation >= 0):
+            raise ReachsetError(f"--inflation must be finite and >= 0, got {args.inflation}")
     grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
     est = Estimator.named(args.estimator, lwa4p_joint_plant(dt=args.dt))
@@ -185,8 +193,8 @@ def run(args):
                     "horizon_settled": None if settled is None else bool(settled < args.horizon),
                     "soundness_inflation": float(sets.soundness_bump),
                     "objective": float(sets.cost)}
-    inflation = 0.0
-    result = {"joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
+    inflation = 0.0 if args.inflation is None else float(args.inflation)
+    result = {"inflation": inflation, "joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
               "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak}
     if vseries is not None:
         inflation, val = validate(plant, est, args.horizon, thm, joints, vseries, grid, args.fault_accel)
