@@ -108,7 +108,7 @@ def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
     """The reference may arrive after the estimate of the same stamp (two nodes, two paths):
     the controller waits for it; without one it uses the newest earlier reference."""
     ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0],
-                                           "reference_timeout": 0.2}, tmp_path)
+                                           "reference_timeout": 0.2, "allow_uncertified": True}, tmp_path)
     got = {}
     ros.create_subscription(PlantInput, "plant_input", lambda m: got.setdefault(
         m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, list(m.acceleration)), TICK_QOS)
@@ -266,7 +266,7 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
     from reachset_ros.bags.messages import BRAKE_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC
     from reachset_ros.sim.safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
     from reachset_ros.systems.stopping import rest_after_stop
-    common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    common = {"joints": ALL_JOINTS, **INITIAL_GAINS, "allow_uncertified": True}   # no model: initial gains
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
     rec = Recorder("cat1_listener", {"joint_states": JointState, "brake_command": BrakeCommand})
@@ -338,7 +338,7 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     u_max = np.array([26.0, 26.0, 26.0, 26.0, 100.0, 100.0])
     rec = Recorder("braking_listener", {"joint_states": JointState, "plant_input": PlantInput,
                                         "observer/estimate": JointEstimate, "effort_commands": Float64MultiArray})
-    common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    common = {"joints": ALL_JOINTS, **INITIAL_GAINS, "allow_uncertified": True}   # no model: initial gains
     # as the monitor does: the stop state latched before the controller starts, which holds
     # the arm until it has it; so once the arm moves, the controller's reader has matched
     # this writer (a writer that has matched the reader is not enough: under load the
@@ -444,7 +444,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     bag = tmp_path / "run"
     rec = Recorder("bagcheck_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop,
                                          "sim/fault_onset": Header})
-    common = {"joints": ALL_JOINTS, **INITIAL_GAINS}
+    common = {"joints": ALL_JOINTS, **INITIAL_GAINS, "allow_uncertified": True}   # no model: initial gains
     procs = [launch.start("recorder_node", {"output": str(bag), "topics": MONITOR_TOPICS}, tmp_path),
              launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
                                            "window_dir": str(tmp_path / "windows")}, tmp_path),
@@ -558,7 +558,8 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
 def test_controller_refuses_to_start_with_a_configuration_it_would_refuse_later(tmp_path, params, words):
     """The start-up parameters pass the same checks as a change through the parameter
     service: else the node exits with status 2 and one line naming the reason, never drives."""
-    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], **params}, tmp_path)
+    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "allow_uncertified": True, **params},
+                       tmp_path)
     try:
         assert ctl.proc.wait(timeout=60) == 2
     finally:
@@ -729,7 +730,7 @@ def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tm
     loop's (closed_loop_tick on the Gains' observer and controller) to the bit. Each switch
     starts a transient the controller reports with the closed loop's settling time; a
     reference with |qdd_d| > u_ff_bound is flagged on /diagnostics, and still controlled by the law."""
-    params = {"joints": ALL_JOINTS, **LOOP_KINDS[0], **LOOP_GAINS}
+    params = {"joints": ALL_JOINTS, **LOOP_KINDS[0], **LOOP_GAINS, "allow_uncertified": True}
     obs_p = launch.start("observer_node", params, tmp_path)
     ctl_p = launch.start("controller_node", {**params, "reference_timeout": 1.0, "u_ff_bound": 2.0}, tmp_path)
     rec = Recorder("loop_listener", {"plant_input": PlantInput, "observer/estimate": JointEstimate,
@@ -834,7 +835,7 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     from reachset_ros import cli
     assert cli.main(["identify", str(bag), "--inflation", "1.0", "--out", str(model)]) == 0
     gains = {k: ([v] if isinstance(v, float) else v) for k, v in DEFAULT_GAINS.items()}
-    common = {"joints": ALL_JOINTS, **gains}
+    common = {"joints": ALL_JOINTS, **gains, "allow_uncertified": True}   # the model has no gains
     rec = Recorder("reset_listener", {"joint_states": JointState, "safe_stop": SafeStop,
                                       "conformance/status": ConformanceStatus})
     procs = [launch.start("sim_node", {"seed": 4, "realistic": True}, tmp_path),

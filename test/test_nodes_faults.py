@@ -687,7 +687,8 @@ def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, 
     what they check; the holding brakes of category 1 are tested in test_stopping.py and
     test_nodes.py)."""
     params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0],
-              "wait_for_monitor": wait_for_monitor, "stop_category": stop_category}
+              "wait_for_monitor": wait_for_monitor, "stop_category": stop_category,
+              "allow_uncertified": model is None}
     if model is not None:
         params["model_file"] = str(model)
     return launch.start("controller_node", params, d)
@@ -883,7 +884,7 @@ class TestObserverNode:
         est = []
         sub = bus.listener.create_subscription(JointEstimate, "observer/estimate", est.append,
                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
-        obs = launch.start("observer_node", {"joints": JOINTS}, tmp_path)
+        obs = launch.start("observer_node", {"joints": JOINTS, "allow_uncertified": True}, tmp_path)
         try:
             # /plant_input: the observer and this test's own listener
             assert bus.wait(lambda: bus.js.get_subscription_count() == 1 and bus.pi.get_subscription_count() == 2,
@@ -1062,3 +1063,36 @@ class TestResetNeedsClearedCondition:
             assert "reset refused" in proc.log.read_text() and proc.alive()
         finally:
             launch.stop([proc])
+
+
+class TestOneGateForThePair:
+    """Issue 19.4: both nodes certify the pair (systems.gains.certify_pair) whichever receives
+    a change. Before: observer_node accepted eps 0.0005 and h2 100 while the controller checked
+    its own copy (0.01 / 30), and without a model the controller accepted omega 40 (stability only)."""
+
+    def test_observer_refuses_gains_whose_pair_is_not_certified(self, bus, tmp_path):
+        model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
+        obs = launch.start("observer_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
+                                             "omega": [10.0], "zeta": [1.0]}, tmp_path)
+        try:
+            assert bus.wait(lambda: bus.js.get_subscription_count() >= 1, 30), obs.log.read_text()
+            # eps 0.0005: the observer alone would run (stable), but the pair's R*_u leaves U_p
+            for change, words in (({"eps": [0.0005]}, "R*_u"), ({"omega": [40.0]}, "R*_u")):
+                ok, why = bus.set_params("observer_node", change)
+                assert not ok and words in why and "arm_1_joint" in why, (change, why)
+            assert bus.get_param("observer_node", "eps") == [0.01] and bus.get_param("observer_node", "h2") == [30.0]
+            ok, why = bus.set_params("observer_node", {"omega": [12.0]})   # a certified change passes
+            assert ok, why
+            assert obs.alive()
+        finally:
+            launch.stop([obs])
+
+    @pytest.mark.parametrize("node", ["observer_node", "controller_node"])
+    def test_without_a_model_gains_need_allow_uncertified(self, tmp_path, node):
+        p = launch.start(node, {"joints": JOINTS, "omega": [40.0]}, tmp_path)
+        try:
+            assert p.proc.wait(timeout=60) == 2
+        finally:
+            launch.stop([p])
+        log = p.log.read_text()
+        assert "no model covers these gains" in log and "allow_uncertified" in log, log[-1500:]

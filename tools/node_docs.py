@@ -67,6 +67,12 @@ def value_range(d):
     return "—"
 
 
+#: parameters the probe overrides so that every node starts with its defaults otherwise
+#: (observer and controller refuse uncertified gains without a model): the declared default
+#: is shown
+PROBE_OVERRIDES = {"allow_uncertified": (True, False)}     # name -> (probe value, declared default)
+
+
 def table(node, skip):
     """The Markdown parameter table of ``node``.
 
@@ -86,7 +92,10 @@ def table(node, skip):
     rows = ["| name | type | default | range | read-only | description |",
             "|---|---|---|---|---|---|"]
     for name, d in zip(names, node.describe_parameters(names)):
-        default = literal(node.get_parameter(name).value)
+        value = node.get_parameter(name).value
+        if name in PROBE_OVERRIDES:
+            value = PROBE_OVERRIDES[name][1]
+        default = literal(value)
         rows.append("| " + " | ".join([
             f"`{name}`", TYPES.get(d.type, str(d.type)), f"`{cell(default)}`", value_range(d),
             "yes" if d.read_only else "no", cell(d.description)]) + " |")
@@ -107,7 +116,8 @@ def generate():
     import rclpy.logging
     tables = {}
     cwd = os.getcwd()
-    rclpy.init(args=[])
+    rclpy.init(args=["--ros-args"] + [a for n, (v, _) in PROBE_OVERRIDES.items()
+                                       for a in ("-p", f"{n}:={str(v).lower()}")])
     try:
         with tempfile.TemporaryDirectory(prefix="node_docs_") as tmp:
             os.chdir(tmp)   # relative defaults (the recorder's bag) land here, not in the repo

@@ -45,32 +45,12 @@ from std_msgs.msg import Float64MultiArray
 from ..conformance import model as mdl
 from ..robot import dynamics as robot
 from ..errors import ReachsetError
-from ..systems import closedloop
-from ..systems.closedloop import FeedbackLaw
-from ..systems.gains import check_gains
-from ..systems.plant import lwa4p_joint_plant
-from ..systems.stopping import StopPolicy, StopState, braking_input, hold_position, stop_tick   # noqa: F401
+from ..systems.stopping import StopPolicy, StopState, stop_tick
 from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
-from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
+from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, proposed_values,
+                          validate_pair)
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
-
-
-def u_max_array(value, n):
-    """U_p half-widths for ``n`` joints from the ``u_max`` parameter (one value for all, or
-    at least ``n``: the first ``n`` are used); each finite and > 0, else ReachsetError."""
-    try:
-        a = np.array([float(x) for x in value], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ReachsetError(f"u_max must be numbers, got {value!r}") from None
-    if a.size == 1:
-        a = np.full(n, a[0])
-    if a.size < n:
-        raise ReachsetError(f"u_max needs 1 or {n} values, got {a.size}")
-    a = a[:n]
-    if not np.all(np.isfinite(a)) or np.any(a <= 0):
-        raise ReachsetError(f"u_max must be finite and > 0 rad/s^2, got {a.tolist()}")
-    return a
 
 
 class ControllerNode(Node):
@@ -78,12 +58,7 @@ class ControllerNode(Node):
         super().__init__("controller_node")
         self.declare_parameter("joints", DEFAULT_JOINTS, desc("joints; /effort_commands uses this order"))
         self.declare_parameter("robot_params", "", desc("identified robot parameters YAML ('' = URDF values)"))
-        self.declare_parameter("model_file", "", desc("conformance model used to check gain changes"))
-        self.declare_parameter("u_max", [26.0, 26.0, 26.0, 26.0, 100.0, 100.0],
-                               desc("U_p half-width per joint, rad/s^2"))
-        self.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified "
-                                                       "for; references beyond it are flagged reference_out_of_class",
-                                                       0.0, 1000.0))
+        declare_certificate_parameters(self)
         self.declare_parameter("dt", 0.004, desc("tick period, s (the observer's; a model must have the same)",
                                                  1e-4, 1.0, read_only=True))
         self.declare_parameter("reference_timeout", 0.02,
@@ -118,12 +93,10 @@ class ControllerNode(Node):
         path = self.get_parameter("model_file").value
         if path:
             self.model = mdl.load(path)
-        # the start-up configuration passes the same checks as a later change (stable closed
-        # loops; R_u inside U_p where the model has the joint): else the node does not start
-        values = dict(current_values(self), u_max=self.get_parameter("u_max").value,
-                      u_ff_bound=self.get_parameter("u_ff_bound").value)
+        # the start-up configuration passes the same gate as a later change (the pair's
+        # certificate, gain_params.validate_pair): else the node does not start
         try:
-            self.apply(self.validate(values, self.model), "start-up")
+            self.apply(self.validate(current_values(self), self.model), "start-up")
         except ReachsetError as e:
             raise ReachsetError(f"start-up parameters refused: {e}") from None
         self.refs = {}
@@ -182,6 +155,7 @@ class ControllerNode(Node):
             st.level, st.message = DiagnosticStatus.OK, "tracking"
         counts = dict(self.counters, callback_errors=getattr(self, "callback_errors", 0))
         values = {k: str(v) for k, v in counts.items()}
+        values["uncertified_joints"] = ",".join(self.uncertified)     # gains run on stability alone
         if self.out_of_class_last is not None:
             stamp, joint, acc = self.out_of_class_last
             values.update(reference_out_of_class_last_ns=str(stamp), reference_out_of_class_joint=joint,
@@ -201,45 +175,19 @@ class ControllerNode(Node):
 
     # -- gains ---------------------------------------------------------------------------
     def validate(self, values, model):
-        """The configuration a proposed set of parameters gives, or ReachsetError with the
-        reason: every joint's closed loop must be stable, and where the model has the joint's
-        sets its R*_u (for the sets scaled by 1 + the model's inflation, plus U_ff and the
-        model's U_e,ff: :func:`~reachset_ros.systems.gains.certify`) must stay inside U_p. Returns a dict: ``gains`` (joint -> Gains),
-        ``laws`` (joint -> FeedbackLaw, the certified law of the loop), ``settling`` (joint ->
-        ticks, :func:`~reachset_ros.systems.closedloop.settling_ticks` of its closed loop),
-        ``u_max``, ``u_ff``, ``model``."""
-        gains = gains_from(values, self.joints)
-        def value(name):
-            return values[name] if name in values else self.get_parameter(name).value
-        u_max = u_max_array(value("u_max"), len(self.joints))
-        u_ff = float(value("u_ff_bound"))
-        if model is not None and abs(model.plant.dt - self.dt) > 1e-12 * self.dt:
-            raise ReachsetError(f"the model's dt {model.plant.dt:g} s differs from the controller's dt {self.dt:g} s")
-        plant = model.plant if model is not None else lwa4p_joint_plant(dt=self.dt)
-        laws, settling = {}, {}
-        for i, j in enumerate(self.joints):
-            js = model.joints.get(j) if model is not None else None
-            if js is not None:
-                # R*_u of the sets the monitor checks: alpha scaled by 1 + the model's inflation,
-                # plus U_ff and the model's recorded U_e,ff (systems.gains.certify)
-                ok, why, _ = check_gains(gains[j], js, u_max=float(u_max[i]), u_ff=u_ff, plant=model.plant,
-                                         inflation=model.inflation)
-                if not ok:
-                    raise ReachsetError(f"joint {j}: {why}")
-            g = gains[j]
-            obs, ctrl = g.build(self.dt)
-            cl = closedloop.close_loop(plant, obs, ctrl)
-            st = closedloop.stability(cl)
-            if not st.stable:
-                raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
-            laws[j] = FeedbackLaw.of(ctrl, obs)
-            settling[j] = closedloop.settling_ticks(st.spectral_radius)
-        return dict(gains=gains, laws=laws, settling=settling, u_max=u_max, u_ff=u_ff, model=model)
+        """The configuration a proposed set of parameters gives (:func:`validate_pair`, the
+        one gate of the observer + controller pair, :func:`~reachset_ros.systems.gains.certify_pair`),
+        or ReachsetError with the reason."""
+        return validate_pair(self, values, model)
 
     def apply(self, cfg, cause):
         """Take a validated configuration; a change of the loop (any joint's gains) starts
         a transient at the next tick (``cause`` names it in the diagnostics)."""
         changed = getattr(self, "gains", None) != cfg["gains"]
+        if cfg["uncertified"] and cfg["uncertified"] != getattr(self, "uncertified", None):
+            self.get_logger().warning(f"gains of {', '.join(cfg['uncertified'])} run without a certificate "
+                                      "(allow_uncertified): closed-loop stability only")
+        self.uncertified = cfg["uncertified"]
         self.gains, self.laws, self.settling = cfg["gains"], cfg["laws"], cfg["settling"]
         self.u_max, self.u_ff, self.model = cfg["u_max"], cfg["u_ff"], cfg["model"]
         # per joint: where x0 and x_ref take the estimate components the law acts on
@@ -257,8 +205,6 @@ class ControllerNode(Node):
         values = proposed_values(self, params)
         model = self.model
         for p in params:
-            if p.name in ("u_max", "u_ff_bound"):
-                values[p.name] = p.value
             if p.name == "model_file":
                 try:
                     model = mdl.load(p.value) if p.value else None

@@ -5,8 +5,10 @@ joint (:func:`gains_from`), the type the synthesis certifies and writes into the
 file: ``observer``, ``controller`` and ``eso_input`` (which plant input the ESO is fed) are
 one string per node, the numbers one value per joint or one for all.
 """
+import numpy as np
+
 from ..errors import ReachsetError
-from ..systems.gains import DEFAULTS, ESO_INPUTS, Gains
+from ..systems.gains import DEFAULTS, ESO_INPUTS, Gains, certify_pair
 from .common import desc
 
 GAIN_DOCS = {
@@ -21,6 +23,8 @@ GAIN_DOCS = {
 }
 #: the string parameters: the loop structure (one per node)
 TYPE_PARAMS = ("observer", "controller", "eso_input")
+#: what the pair's certificate needs besides the gains (declared by both nodes)
+CERTIFICATE_PARAMS = ("model_file", "u_max", "u_ff_bound", "allow_uncertified")
 
 
 def declare_gain_parameters(node):
@@ -31,6 +35,55 @@ def declare_gain_parameters(node):
                                 "u_p[k] (an algebraic loop the controller solves); as in the model file's gains"))
     for k, (d, lo, hi) in GAIN_DOCS.items():
         node.declare_parameter(k, [float(DEFAULTS[k])], desc(d + "; one value per joint, or one for all"))
+
+
+def declare_certificate_parameters(node):
+    """What the gate of the pair needs: the model, U_p, U_ff and the explicit opt-out."""
+    node.declare_parameter("model_file", "", desc("conformance model the gains are certified against (R*_u inside "
+                                                  "U_p with its sets and inflation)"))
+    node.declare_parameter("u_max", [26.0, 26.0, 26.0, 26.0, 100.0, 100.0],
+                           desc("U_p half-width per joint, rad/s^2"))
+    node.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified "
+                                                   "for; references beyond it are flagged reference_out_of_class",
+                                                   0.0, 1000.0))
+    node.declare_parameter("allow_uncertified", False,
+                           desc("run gains that no model certifies (no model_file, or a joint not in it) on closed-"
+                                "loop stability alone; without it they are refused"))
+
+
+def u_max_array(value, n):
+    """U_p half-widths for ``n`` joints from the ``u_max`` parameter (one value for all, or
+    at least ``n``: the first ``n`` are used); each finite and > 0, else ReachsetError."""
+    try:
+        a = np.array([float(x) for x in value], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ReachsetError(f"u_max must be numbers, got {value!r}") from None
+    if a.size == 1:
+        a = np.full(n, a[0])
+    if a.size < n:
+        raise ReachsetError(f"u_max needs 1 or {n} values, got {a.size}")
+    a = a[:n]
+    if not np.all(np.isfinite(a)) or np.any(a <= 0):
+        raise ReachsetError(f"u_max must be finite and > 0 rad/s^2, got {a.tolist()}")
+    return a
+
+
+
+
+def validate_pair(node, values, model):
+    """The gate of both nodes: :func:`~reachset_ros.systems.gains.certify_pair` of the gains
+    a proposed set of parameters gives (``values``: gain parameters, optionally u_max,
+    u_ff_bound, allow_uncertified; the node's current values otherwise). Returns a dict:
+    ``gains``, ``laws``, ``settling``, ``uncertified`` (from the certificate), ``u_max``,
+    ``u_ff``, ``model``; raises ReachsetError with the reason."""
+    def value(name):
+        return values[name] if name in values else node.get_parameter(name).value
+    gains = gains_from(values, node.joints)
+    u_max = u_max_array(value("u_max"), len(node.joints))
+    u_ff = float(value("u_ff_bound"))
+    pc = certify_pair(gains, model, u_max, u_ff, node.dt, bool(value("allow_uncertified")))
+    return dict(gains=pc.gains, laws=pc.laws, settling=pc.settling, uncertified=pc.uncertified,
+                u_max=u_max, u_ff=u_ff, model=model)
 
 
 def gains_from(values: dict, joints):
@@ -54,6 +107,7 @@ def current_values(node):
 
 def proposed_values(node, params):
     vals = current_values(node)
+    vals.update({n: node.get_parameter(n).value for n in CERTIFICATE_PARAMS})
     for p in params:
         if p.name in vals:
             vals[p.name] = p.value

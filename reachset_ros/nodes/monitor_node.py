@@ -223,7 +223,7 @@ class MonitorNode(Node):
         super().__init__("monitor_node")
         self.declare_parameter("model_file", "", desc("conformance model YAML (identify/synthesize output)"))
         self.declare_parameter("joints", [""], desc("joints to monitor (default: all of the model)"))
-        self.declare_parameter("max_missing_ticks", 25, desc("missing-data limit: ticks without a complete sample, or "
+        self.declare_parameter("max_missing_ticks", 125, desc("missing-data limit: ticks without a complete sample, or "
                                                                "(after the warm-up) without the checks the model "
                                                                "needs, before a fault",
                                                                1, 10000, integer=True))

@@ -9,7 +9,10 @@ the same code the synthesis certified. At a measurement stamped t the estimate
 state advances once the plant input stamped t arrives (the ESO needs it; the HG observer
 ignores it). It starts (and restarts after a gain change) at the first measurement from
 ``LinearObserver.start_state``. Gains change only through the parameter service,
-atomically between ticks; invalid gains are refused with the reason.
+atomically between ticks, and pass the same gate as the controller's
+(:func:`~reachset_ros.nodes.gain_params.validate_pair`: the pair's closed loop stable and,
+with a ``model_file``, R*_u inside U_p for the monitored sets; without one only with
+``allow_uncertified``); refused gains are refused with the reason.
 """
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -17,10 +20,12 @@ from rclpy.node import Node
 from reachset_msgs.msg import JointEstimate, PlantInput
 from sensor_msgs.msg import JointState
 
+from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
-from .gain_params import current_values, declare_gain_parameters, gains_from, proposed_values
+from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, proposed_values,
+                          validate_pair)
 
 
 class ObserverNode(Node):
@@ -28,31 +33,47 @@ class ObserverNode(Node):
         super().__init__("observer_node")
         self.declare_parameter("joints", list(JOINT_NAMES), desc("joints, in this order", read_only=True))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0, read_only=True))
+        declare_certificate_parameters(self)
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         self.dt = float(self.get_parameter("dt").value)
         self.counters = {"missing_input": 0, "bad_sample": 0, "stale": 0}
-        self.configure(current_values(self))
+        path = self.get_parameter("model_file").value
+        self.model = mdl.load(path) if path else None
+        try:
+            self.configure(current_values(self), self.model)
+        except ReachsetError as e:
+            raise ReachsetError(f"start-up parameters refused: {e}") from None
         self.pub = self.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
         self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
-    def configure(self, values):
-        gains = gains_from(values, self.joints)
+    def configure(self, values, model):
+        cfg = validate_pair(self, values, model)      # the pair's gate, as the controller's
+        gains = cfg["gains"]
         observers = {j: g.build_observer(self.dt) for j, g in gains.items()}
         for j, o in observers.items():
             rho = max(abs(np.linalg.eigvals(o.Ao))) if o.n_states else 0.0
             if rho >= 1.0:
                 raise ReachsetError(f"observer of joint {j} is unstable (spectral radius {rho:.4g})")
+        if cfg["uncertified"] and cfg["uncertified"] != getattr(self, "uncertified", None):
+            self.get_logger().warning(f"gains of {', '.join(cfg['uncertified'])} run without a certificate "
+                                      "(allow_uncertified): closed-loop stability only")
+        self.uncertified = cfg["uncertified"]
+        self.model = model
         self.observers = observers
         self.states = {j: o.initial_state() for j, o in observers.items()}
         self.initialised = False
         self.pending = None  # (stamp, y per joint) awaiting its plant input
 
     def on_set_parameters(self, params):
+        model = self.model
         try:
-            self.configure(proposed_values(self, params))
+            for p in params:
+                if p.name == "model_file":
+                    model = mdl.load(p.value) if p.value else None
+            self.configure(proposed_values(self, params), model)
         except ReachsetError as e:
             return SetParametersResult(successful=False, reason=str(e))
         return SetParametersResult(successful=True)

@@ -44,8 +44,10 @@ from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_param
 GAIN_KEYS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
 #: per-joint parameters each target takes from a synthesis, besides the ``observer`` and
 #: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
+#: both nodes get the whole pair (observer and controller gains), U_p and the model: each
+#: certifies the pair it will be part of (gain_params.validate_pair, systems.gains.certify_pair)
 TARGET_KEYS = {"controller_node": GAIN_KEYS + ("u_max",),
-               "observer_node": tuple(k for k in GAIN_KEYS if k not in ("omega", "zeta"))}
+               "observer_node": GAIN_KEYS + ("u_max",)}
 #: the loop structure, one string per node (``eso_input``: which plant input the ESO is fed;
 #: a model file without it means "previous", as :meth:`Gains.from_model` reads it)
 TYPE_KEYS = ("observer", "controller", "eso_input")
@@ -284,8 +286,8 @@ class SynthesisNode(Node):
         the sets the monitor checks inside U_p), whatever the targets. Then per target, in
         the order controller_node, observer_node, monitor_node (those in
         ``targets``), the current values are read through ``get_parameters`` and the new
-        ones planned (:func:`target_values`; the controller also gets ``u_max`` and
-        ``model_file``, the monitor ``model_file``) before anything is set, so a plan that
+        ones planned (:func:`target_values`; the controller and the observer get the whole
+        pair's gains, ``u_max`` and ``model_file``, the monitor ``model_file``) before anything is set, so a plan that
         cannot work (a joint a target lacks, a partial synthesis that would change a node's
         observer/controller type, a target not answering) changes nothing. Each target's
         parameters are set atomically; on a refusal the targets already updated get their
@@ -302,15 +304,14 @@ class SynthesisNode(Node):
         for node, keys in TARGET_KEYS.items():
             if node not in targets:
                 continue
-            names = ["joints", *TYPE_KEYS, *keys] + (["model_file"] if node == "controller_node" else [])
+            names = ["joints", *TYPE_KEYS, *keys, "model_file"]
             current, why = get_remote_parameters(self.client_node, node, names)
             if current is None:
                 return False, why
             values, why = target_values(node, current, synthesis, keys)
             if values is None:
                 return False, why
-            if node == "controller_node":
-                values["model_file"] = model_file
+            values["model_file"] = model_file
             plan.append((node, values, {k: current[k] for k in values}))
         if "monitor_node" in targets:
             current, why = get_remote_parameters(self.client_node, "monitor_node", ["model_file"])

@@ -277,3 +277,85 @@ def certified_inflation(model, requested: float):
             raise ReachsetError(f"joint {name}: {c.reason}")
         per[name] = float(best)
     return float(min([float(requested), *per.values()])), per
+
+
+@dataclass(frozen=True)
+class PairCertificate:
+    """What :func:`certify_pair` established for the observer + controller of every joint.
+
+    ``gains`` (joint -> Gains), ``laws`` (joint -> :class:`~reachset_ros.systems.closedloop.FeedbackLaw`,
+    the certified law of the loop), ``settling`` (joint -> ticks of its transient,
+    :func:`~reachset_ros.systems.closedloop.settling_ticks`), ``certified`` (joint -> the
+    :class:`Certificate` of R*_u inside U_p, None where no model covers the joint) and
+    ``uncertified`` (the joints run on stability alone, allowed by ``allow_uncertified``).
+    """
+
+    gains: dict
+    laws: dict
+    settling: dict
+    certified: dict
+    uncertified: tuple
+
+
+def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncertified: bool = False):
+    """The one gate for a change of observer or controller gains, whichever node receives it.
+
+    For each joint the pair (its observer and its feedback law, one :class:`Gains`) must give
+    a stable closed loop with the model's plant, and where the model has the joint's sets its
+    R*_u must stay inside U_p for the sets the monitor checks (:func:`certify`, with the
+    model's inflation and recorded U_e,ff). A joint no model covers (no model, or not in it)
+    has no certificate: refused unless ``allow_uncertified``, which runs it on stability alone
+    and is reported (``uncertified``). The observer node and the controller node both call
+    this (start-up and every parameter change), with the same parameters (the synthesis node
+    sets both), so neither can run gains the other's gate would refuse.
+
+    Parameters
+    ----------
+    gains : dict
+        joint -> :class:`Gains`.
+    model : ConformanceModel or None
+    u_max : sequence of float
+        U_p half-width per joint (in the order of ``gains``).
+    u_ff : float
+        Bound of |qdd_d| (U_ff).
+    dt : float
+        The nodes' tick period; a model must have the same.
+    allow_uncertified : bool
+
+    Returns
+    -------
+    PairCertificate
+
+    Raises
+    ------
+    ReachsetError
+        Naming the joint and the reason (unstable, R*_u outside U_p, no certificate).
+    """
+    if model is not None and abs(model.plant.dt - dt) > 1e-12 * dt:
+        raise ReachsetError(f"the model's dt {model.plant.dt:g} s differs from the nodes' dt {dt:g} s")
+    plant = model.plant if model is not None else lwa4p_joint_plant(dt=dt)
+    u_max = list(u_max)
+    laws, settling, certified, uncertified = {}, {}, {}, []
+    for i, (j, g) in enumerate(gains.items()):
+        obs, ctrl = g.build(dt)
+        cl = closedloop.close_loop(plant, obs, ctrl)
+        st = closedloop.stability(cl)
+        if not st.stable:
+            raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
+        js = model.joints.get(j) if model is not None else None
+        if js is not None:
+            c = certify(g, js, model.inflation, float(u_max[i]), u_ff, plant=model.plant)
+            if not c.ok:
+                raise ReachsetError(f"joint {j}: {c.reason}")
+            certified[j] = c
+        else:
+            if not allow_uncertified:
+                raise ReachsetError(
+                    f"joint {j}: no model covers these gains ({'no model_file' if model is None else 'not in the model'}"
+                    "): R*_u inside U_p cannot be certified; give a model_file, or set allow_uncertified to run "
+                    "them on closed-loop stability alone")
+            certified[j] = None
+            uncertified.append(j)
+        laws[j] = closedloop.FeedbackLaw.of(ctrl, obs)
+        settling[j] = closedloop.settling_ticks(st.spectral_radius)
+    return PairCertificate(dict(gains), laws, settling, certified, tuple(uncertified))
