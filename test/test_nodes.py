@@ -706,10 +706,13 @@ def test_node_parameters_and_law_are_the_certified_ones():
     with pytest.raises(ReachsetError, match="eso_input must be previous or current"):
         gains_from({**LOOP_KINDS[0], "eso_input": "later", **LOOP_GAINS}, ALL_JOINTS)
     ctl = SimpleNamespace(joints=ALL_JOINTS, dt=0.004)
-    values = {**LOOP_KINDS[4], **LOOP_GAINS, "u_max": [26.0], "u_ff_bound": 2.0}
+    values = {**LOOP_KINDS[4], **LOOP_GAINS, "u_max": [26.0], "u_ff_bound": 2.0, "allow_uncertified": True}
     cfg = ControllerNode.validate(ctl, values, None)
     assert set(cfg["laws"]) == set(ALL_JOINTS) and all(k > 0 for k in cfg["settling"].values())
-    with pytest.raises(ReachsetError, match="model's dt 0.002 s differs from the controller's dt 0.004 s"):
+    assert cfg["uncertified"] == tuple(ALL_JOINTS)
+    with pytest.raises(ReachsetError, match="no model covers these gains"):      # issue 19.4
+        ControllerNode.validate(ctl, dict(values, allow_uncertified=False), None)
+    with pytest.raises(ReachsetError, match="model's dt 0.002 s differs from the nodes' dt 0.004 s"):
         ControllerNode.validate(ctl, values, SimpleNamespace(plant=lwa4p_joint_plant(dt=0.002), joints={}))
 
 
