@@ -44,6 +44,8 @@ venv: $(VENV)/.pkg
 test: venv
 	$(PY) -m pytest $(PYTEST_ARGS)
 
+# the demo picks a fresh ROS_DOMAIN_ID (reachset_ros/domain.py) and prints it first: a second
+# `make demo` on the machine runs beside it undisturbed
 demo: venv
 	$(VENV)/bin/reachset demo --headless
 

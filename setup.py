@@ -32,6 +32,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/config", glob("config/*")),
+        ("share/" + PACKAGE + "/launch", glob("launch/*.launch.py")),
     ],
     ext_modules=[TICK_KERNEL],
     install_requires=["setuptools"],

@@ -9,7 +9,10 @@ The pure core (no rclpy import) holds all mathematics, one concept per subpackag
 :mod:`~reachset_ros.bags` (rosbag2 reading and writing), :mod:`~reachset_ros.sim` (the
 simulated arm and its references). ROS 2 nodes in :mod:`reachset_ros.nodes` are thin
 adapters over it; :mod:`reachset_ros.cli` and :mod:`reachset_ros.commands` are the
-``reachset`` command line, :mod:`reachset_ros.plots` its figures.
+``reachset`` command line, :mod:`reachset_ros.plots` its figures. Processes and their
+environment: :mod:`reachset_ros.launch` (node processes: start, stop, signals),
+:mod:`reachset_ros.domain` (a fresh DDS domain), :mod:`reachset_ros.params_file` (ROS 2
+parameter files).
 """
 
 __version__ = "0.1.0"

@@ -6,6 +6,7 @@ and exits with status 2 (a traceback only with ``--debug``).
 """
 import argparse
 import importlib
+import signal
 import sys
 
 from .commands import MODULES
@@ -52,8 +53,8 @@ def main(argv=None):
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         print(f"reachset {args.command}: error: {msg}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as e:   # Ctrl-C, or launch.Interrupted (SIGINT/SIGTERM) after children stopped
+        return 128 + getattr(e, "signum", signal.SIGINT)
     return int(rc or 0)
 
 

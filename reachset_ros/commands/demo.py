@@ -6,9 +6,14 @@ recorded and the combined synthesis repeated on both recordings (the paper's ite
 procedure, Sec. III-D, second iteration); gains and model go to the nodes, the model to
 the monitor; 4. a monitored run (recorded to ``--record``) into which a fault is
 injected; the monitor stops the arm. Prints a summary and writes plots.
+
+It runs in a fresh DDS domain (:func:`reachset_ros.domain.pick_domain_id`, printed first,
+``ros_domain_id`` in the summary), which its nodes inherit. SIGINT and SIGTERM stop it the
+same way: every node it started is stopped, then it exits with 128 + the signal's number.
 """
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -16,8 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import launch
 from ..bags.messages import BRAKE_TOPIC, FAULT_ONSET_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC, STATUS_TOPIC
 from ..bags.series import read_messages
+from ..domain import pick_domain_id
 from ..errors import ReachsetError
 from ..plots import demo_plots
 from ..sim.safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
@@ -68,12 +75,32 @@ def run(args):
     log = (lambda *a: None) if args.json else (lambda *a: print(*a, flush=True))
     t0 = time.monotonic()
     fault_at = args.inject_fault_at if args.inject_fault_at is not None and args.inject_fault_at >= 0 else None
+    # a DDS domain of its own, inherited by every node it starts: a second demo (or any other
+    # ROS 2 program) on the machine cannot publish into this one
+    domain = pick_domain_id()
+    log(f"[demo] ROS_DOMAIN_ID={domain} (a fresh DDS domain); logs in {workdir}")
+    previous_domain = os.environ.get("ROS_DOMAIN_ID")
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
     try:
-        res = run_demo(workdir, record, duration=args.duration, fault_at=fault_at, train=args.train,
-                       seed=args.seed, log=log, fault=fault, inflation=args.inflation)
+        # SIGTERM as SIGINT: the story stops at its next step and every node it started is
+        # stopped (the synthesis node stops its `reachset synthesize`), then exit 128 + signal
+        with launch.StopRequest() as stop:
+            res = run_demo(workdir, record, duration=args.duration, fault_at=fault_at, train=args.train,
+                           seed=args.seed, log=log, fault=fault, inflation=args.inflation, stop=stop)
+            stop.check()
     except RuntimeError as e:
         raise ReachsetError(f"demo: {e} (logs in {workdir})") from e
+    except launch.Interrupted as e:
+        print(f"reachset demo: stopped on {e}; every node it started is stopped; logs in {workdir}",
+              file=sys.stderr, flush=True)
+        raise
+    finally:
+        if previous_domain is None:
+            os.environ.pop("ROS_DOMAIN_ID", None)
+        else:
+            os.environ["ROS_DOMAIN_ID"] = previous_domain
     summary = summarize(res, record, workdir)
+    summary["ros_domain_id"] = domain
     summary["wall_time_s"] = time.monotonic() - t0
     summary["workdir"] = str(workdir)
     summary["failures"] = story_failures(summary, fault_at is not None and fault_at < args.duration)

@@ -84,10 +84,23 @@ def spin_node(node_cls, args=None, **kwargs):
 
 
 def spin_until_signal(node, executor):
-    """Spin ``executor`` until SIGINT, SIGTERM or rclpy shutdown; callback errors are counted."""
+    """Spin ``executor`` until SIGINT, SIGTERM or rclpy shutdown; callback errors are counted.
+
+    A node with an ``on_signal(signum)`` method has it called from the signal handler (in
+    the main thread, between two Python instructions, possibly inside a callback): the
+    synthesis node stops its ``reachset synthesize`` child there, which its service
+    callback is waiting for.
+    """
     stop = []
+
+    def on_signal(signum, frame):
+        stop.append(signum)
+        hook = getattr(node, "on_signal", None)
+        if hook is not None:
+            hook(signum)
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.append(True))
+        signal.signal(sig, on_signal)
     while rclpy.ok() and not stop:
         try:
             executor.spin_once(timeout_sec=0.1)

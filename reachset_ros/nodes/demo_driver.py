@@ -21,6 +21,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 from reachset_msgs.msg import SafeStop
 from reachset_msgs.srv import Synthesize
 from std_msgs.msg import Header
@@ -31,7 +32,7 @@ from ..conformance import model as mdl
 from ..robot.dynamics import JOINT_NAMES
 from ..synthesis.config import config_path
 from ..systems.gains import certified_inflation
-from .common import SAFE_STOP_QOS, set_remote_parameters, spin_until_complete, stamp_ns
+from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
@@ -54,8 +55,12 @@ def wall_limit(seconds):
 
 
 class DemoDriver(Node):
-    def __init__(self):
+    """The conductor's node; ``stop`` (a :class:`reachset_ros.launch.StopRequest`) is looked at
+    after every spin, where :class:`reachset_ros.launch.Interrupted` ends the story."""
+
+    def __init__(self, stop=None):
         super().__init__("demo_driver", parameter_overrides=[Parameter("use_sim_time", value=True)])
+        self.stop = stop
         self.stops = []
         self.onsets = []
         self.create_subscription(SafeStop, "safe_stop", lambda m: self.stops.append(m), SAFE_STOP_QOS)
@@ -69,6 +74,8 @@ class DemoDriver(Node):
 
     def spin_once(self, timeout_sec):
         self.own_executor.spin_once(timeout_sec=timeout_sec)
+        if self.stop is not None:
+            self.stop.check()
 
     def spin_for(self, seconds, until=None):
         end = time.monotonic() + seconds
@@ -112,7 +119,9 @@ class DemoDriver(Node):
             if not client.wait_for_service(timeout_sec=30.0):
                 raise RuntimeError(f"service {name} not available")
             fut = client.call_async(request)
-            spin_until_complete(self, fut, timeout)
+            end = time.monotonic() + timeout
+            while not fut.done() and time.monotonic() < end:
+                self.spin_once(0.1)
             if not fut.done():
                 raise RuntimeError(f"service {name} timed out after {timeout:.0f} s")
             return fut.result()
@@ -122,43 +131,45 @@ class DemoDriver(Node):
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
              seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None,
-             inflation=1.0, settle=3.0):
+             inflation=1.0, settle=3.0, stop=None):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock).
 
     ``inflation``: the monitor checks against the identified sets scaled by ``1 + inflation``
-    (the model's ``inflation``)."""
+    (the model's ``inflation``). ``stop``: a :class:`reachset_ros.launch.StopRequest`; once it
+    has a signal, the next spin raises :class:`reachset_ros.launch.Interrupted` and every node
+    started is stopped before it propagates. The nodes run in this process' ``ROS_DOMAIN_ID``
+    (``reachset demo`` sets a fresh one)."""
     workdir.mkdir(parents=True, exist_ok=True)
     initial = initial or INITIAL_GAINS
     out = {"phases": [], "real_time_factor": {}}
     procs = []
     own = not rclpy.ok()
-    if own:
-        rclpy.init()
-    driver = DemoDriver()
+    if own:   # signals are the caller's (StopRequest), not rclpy's (which would shut the context down)
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    driver = DemoDriver(stop)
     try:
         # the initial gains run before any model exists (identification data): explicitly
         # uncertified; the synthesised gains are certified against the synthesised model
         common = {"joints": JOINTS, "allow_uncertified": True}
-        procs.append(launch.start("sim_node", {"seed": seed, "realistic": True,
-                                                   "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir))
-        procs.append(launch.start("reference_node", {"seed": seed}, workdir))
-        procs.append(launch.start("observer_node", {**common, **initial}, workdir))
-        procs.append(launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir))
-        procs.append(launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
-                                  workdir))
+        launch.start("sim_node", {"seed": seed, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir,
+                     group=procs)
+        launch.start("reference_node", {"seed": seed}, workdir, group=procs)
+        launch.start("observer_node", {**common, **initial}, workdir, group=procs)
+        launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir, group=procs)
+        launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
+                     workdir, group=procs)
         cfg = config_path()
         demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
         extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else [""]
         # the gains are synthesised for the sets the monitor will check (inflated by 1 + inflation),
         # so R*_u inside U_p is certified for them (synthesize --inflation)
-        procs.append(launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra,
-                                                     "inflation": float(inflation)}, workdir))
+        launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra,
+                                        "inflation": float(inflation)}, workdir, group=procs)
 
         def record_phase(name, seconds, topics, path):
             node = "recorder_node_" + name.replace(" ", "_")
             rec = launch.start("recorder_node", {"output": str(path), "topics": topics, "use_sim_time": True},
-                               workdir, node_name=node)
-            procs.append(rec)    # stopped with the others if a phase fails
+                               workdir, node_name=node, group=procs)   # stopped with the others if a phase fails
             # recording starts when the recorder has subscribed to every topic (a loaded machine
             # can take many seconds to start a process), not after a fixed pause
             if not driver.spin_for(60.0, until=lambda: all(

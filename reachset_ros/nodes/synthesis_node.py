@@ -2,7 +2,10 @@
 
 ``~/synthesize`` (reachset_msgs/srv/Synthesize) runs ``reachset synthesize`` on the given
 bags — the very same code path as the command line, in a child process, so the two agree
-to the bit (the node's executor waits for it: the node answers nothing else meanwhile) —
+to the bit (the node's executor waits for it: the node answers nothing else meanwhile; the
+child runs at low priority, nice +10, so that it cannot starve the control loop, in a
+process group of its own that SIGINT/SIGTERM to the node stops, and it gets SIGTERM if the
+node dies) —
 publishes the result on ``synthesis/result``
 (latched), and, when ``apply`` is set and every joint is conformant with R_u inside U_p,
 applies the gains and the model through the other nodes' parameter services:
@@ -25,6 +28,7 @@ the node's own ``model_file`` changes only after every target accepted. Mode
 updates the sets.
 """
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -36,6 +40,7 @@ from rclpy.parameter import Parameter
 from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
+from .. import launch
 from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..systems.gains import Gains, certify
@@ -178,6 +183,8 @@ class SynthesisNode(Node):
         self.pub = self.create_publisher(SynthesisResult, "synthesis/result", SAFE_STOP_QOS)
         self.create_service(Synthesize, "~/synthesize", self.on_synthesize)
         self.count = 0
+        self.child = None          # the running `reachset synthesize` (subprocess.Popen)
+        self.stopping = False      # SIGINT/SIGTERM received
         # parameter clients live on their own node, spun on demand: the service callback
         # cannot spin the node that is running it
         self.client_node = rclpy.create_node("synthesis_node_client")
@@ -233,7 +240,9 @@ class SynthesisNode(Node):
         if inflation >= 0:
             cmd += ["--inflation", repr(inflation)]
         cmd += [a for a in self.get_parameter("extra_args").value if a]
-        p = subprocess.run(cmd, capture_output=True, text=True)
+        p = self.run_child(cmd)
+        if self.stopping:
+            return False, "synthesis stopped: the node is shutting down", None, ""
         if p.returncode != 0:
             return False, (p.stderr.strip().splitlines() or ["synthesis failed"])[-1], None, ""
         data = json.loads(p.stdout)
@@ -243,6 +252,55 @@ class SynthesisNode(Node):
             return False, f"joint {bad[0]}: result not conformant or R_u outside U_p", data, ""
         norms = ", ".join(f"{n} {j['re_norm']:.3g}" for n, j in data["joints"].items())
         return True, f"{mode}: ||R_e|| {norms}; model {out}", data, str(out)
+
+    def run_child(self, cmd):
+        """Run ``cmd`` (``reachset synthesize``) to its end: at low priority, in a process
+        group of its own (:func:`reachset_ros.launch.start_background`), stopped with its
+        group when the node gets SIGINT/SIGTERM (:meth:`on_signal`) or is closed.
+
+        Returns
+        -------
+        subprocess.CompletedProcess
+            ``returncode``, ``stdout``, ``stderr`` (text).
+        """
+        if self.stopping:               # the node is shutting down: start nothing
+            return subprocess.CompletedProcess(cmd, -signal.SIGTERM, "", "")
+        proc = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.child = proc
+        try:
+            if self.stopping:           # a signal came while it was being started
+                launch.signal_group(proc, signal.SIGTERM)
+            out, err = proc.communicate()
+        finally:
+            self.child = None
+            if proc.returncode is None:     # communicate() did not finish
+                self.stop_child(proc)
+        return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+    def on_signal(self, signum):
+        """SIGINT/SIGTERM (called from the signal handler of
+        :func:`~reachset_ros.nodes.common.spin_until_signal`): stop a running synthesis, so
+        the service callback returns and the node can shut down; SIGTERM to the child's
+        group, SIGKILL from the second signal on (``launch.stop`` escalates with SIGTERM)."""
+        again = self.stopping
+        self.stopping = True
+        if self.child is not None:
+            launch.signal_group(self.child, signal.SIGKILL if again else signal.SIGTERM)
+
+    @staticmethod
+    def stop_child(proc, grace=3.0):
+        """SIGTERM to ``proc``'s group, SIGKILL after ``grace`` s; reaps it."""
+        launch.signal_group(proc, signal.SIGTERM)
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            launch.signal_group(proc, signal.SIGKILL)
+            proc.wait()
+
+    def close(self):
+        """Node shutdown: no ``reachset synthesize`` child is left running."""
+        if self.child is not None:
+            self.stop_child(self.child)
 
     def joint_msg(self, name, j):
         m = JointSynthesis(name=name)
