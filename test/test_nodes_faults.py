@@ -877,6 +877,39 @@ class TestControllerNode:
         assert_law(bus, tracking_law(10.0, 1.0))
 
 
+class TestAbsurdCommand:
+    def test_a_non_finite_command_is_never_sent_it_stops_with_brakes(self, bus, tmp_path):
+        """Issue 19.2: an overflowing law (a finite but absurd reference, 1e308 rad) gives a
+        non-finite u_p: the controller sends the holding torque of the last usable position
+        instead, engages every brake, logs and reports it (``bad_command``) until the reset.
+        Before: the non-finite torque went to the drives."""
+        from reachset_msgs.msg import BrakeCommand
+        ctl = start_controller(tmp_path)
+        brakes = []
+        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        try:
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+                            30), ctl.log.read_text()
+            time.sleep(0.5)
+            bus.clear()
+            assert_law(bus, tracking_law(10.0, 1.0))
+            t = stamps(1)[0]
+            r = JointReference(name=JOINTS, position=[1e308, 0.0], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])
+            to_stamp(r.header.stamp, t)
+            bus.ref.publish(r)
+            time.sleep(0.05)
+            got = drive(bus, [t], reference=False)
+            assert t in got and np.array_equal(got[t], [0.0, 0.0]), got
+            assert bus.wait(lambda: any(stamp_ns(b.header.stamp) == t and all(b.engage) for b in list(brakes)))
+            assert "non-finite command" in ctl.log.read_text()
+            c = bus.counters("reachset_ros: controller")
+            assert c["bad_command"] == 1, c
+        finally:
+            bus.listener.destroy_subscription(bsub)
+            launch.stop([ctl])
+
+
 class TestObserverNode:
     def test_non_finite_input_or_sample_does_not_poison_the_estimate(self, bus, tmp_path):
         """A NaN /plant_input or /joint_states is skipped (before: a NaN input made every later
@@ -904,6 +937,9 @@ class TestObserverNode:
             assert len(mine) >= 50 and ts[30] not in [stamp_ns(m.header.stamp) for m in mine]
             assert all(np.all(np.isfinite(m.position)) and np.all(np.isfinite(m.velocity)) for m in mine)
             assert abs(mine[-1].position[0] - (0.1 + 1e-4 * 59)) < 5e-3 and abs(mine[-1].position[1] + 0.2) < 5e-3
+            # visible on /diagnostics (issue 19.2): the skipped samples are counted there
+            c = bus.counters("reachset_ros: observer")
+            assert c["bad_sample"] >= 3, c
             assert obs.alive()
         finally:
             launch.stop([obs])

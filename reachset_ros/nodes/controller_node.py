@@ -106,7 +106,11 @@ class ControllerNode(Node):
         self.own_stop = None         # reason of a stop latched by this node (no usable estimate)
         self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
-                         "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0}
+                         "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
+                         "torque_beyond_limits": 0}
+        # the drives' torque limits (the URDF's effort limits) of the controlled joints
+        eff = np.array(self.robot.pin_model.effortLimit, dtype=np.float64)[self.idx]
+        self.tau_limit = np.where(np.isfinite(eff) & (eff > 0), eff, np.inf)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
         self.flagged = False             # the previous tick's reference was out of class
@@ -387,6 +391,28 @@ class ControllerNode(Node):
         uf = np.zeros(self.robot.nv)
         qf[self.idx], qdf[self.idx], uf[self.idx] = q, qd, u
         tau = robot.feedback_linearization(self.robot, self.data, qf, qdf, uf)[self.idx]
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(tau))):
+            # an absurd command is never sent: a stop of the controller's own, all brakes, and
+            # the torque that holds the last usable position at rest (if that is finite)
+            self.counters["bad_command"] += 1
+            stamp = stamp_ns(header_stamp)
+            if self.stop is None:
+                self.stop = StopState(len(self.joints))
+            self.stop.engage_all(stamp, "non-finite command")
+            if self.own_stop is None:
+                self.own_stop = f"non-finite command at stamp {stamp} (u_p {np.round(u, 4).tolist()})"
+                self.get_logger().error(f"stop: {self.own_stop}; all holding brakes engaged until the safe stop "
+                                        "is reset")
+                self.publish_diagnostics()
+            u = np.zeros(len(self.joints))
+            qf[self.idx] = self.last_q if self.last_q is not None else 0.0
+            tau = robot.feedback_linearization(self.robot, self.data, qf, np.zeros_like(qdf),
+                                               np.zeros_like(uf))[self.idx]
+        over = np.abs(tau) > self.tau_limit
+        if np.any(over):
+            # sent as computed (the drives clamp at their limits), but the certified loop assumed
+            # no saturation: counted and on /diagnostics
+            self.counters["torque_beyond_limits"] += 1
         pi = PlantInput()
         pi.header.stamp = header_stamp
         pi.name = list(self.joints)

@@ -15,6 +15,7 @@ with a ``model_file``, R*_u inside U_p for the monitored sets; without one only 
 ``allow_uncertified``); refused gains are refused with the reason.
 """
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from reachset_msgs.msg import JointEstimate, PlantInput
@@ -48,6 +49,28 @@ class ObserverNode(Node):
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
         self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.reported_bad = 0
+        self.create_timer(1.0, self.publish_diagnostics)
+
+    def publish_diagnostics(self):
+        """About 1 Hz: the counts of skipped inputs; WARN when samples were unusable since the
+        last report (a non-finite /joint_states is skipped: no estimate for that tick, the
+        monitor stops on it), and the joints whose gains run uncertified."""
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        st = DiagnosticStatus(name="reachset_ros: observer", hardware_id="")
+        new_bad = self.counters["bad_sample"] - self.reported_bad
+        self.reported_bad = self.counters["bad_sample"]
+        if new_bad:
+            st.level, st.message = DiagnosticStatus.WARN, f"{new_bad} unusable sample(s) skipped since the last report"
+        else:
+            st.level, st.message = DiagnosticStatus.OK, "estimating"
+        values = {k: str(v) for k, v in self.counters.items()}
+        values["uncertified_joints"] = ",".join(self.uncertified)
+        st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        arr.status = [st]
+        self.diag_pub.publish(arr)
 
     def configure(self, values, model):
         cfg = validate_pair(self, values, model)      # the pair's gate, as the controller's
