@@ -254,8 +254,10 @@ def test_cli_identify_check_replay_and_messy_bags(tmp_path, lwa_data):
     y3, u3 = simulate(p, 2000, np.array([0.3, 30.0]), np.array([3.5e-4]), seed=9)
     other = tmp_path / "other"
     write_bag(other, np.hstack([y3, y3]), np.hstack([u3, u3]), names, T0 + DT_NS * np.arange(2000))
-    chk = json.loads(run_cli("check", other, "--model", model, "--json").stdout)
-    rep = json.loads(run_cli("replay", other, "--model", model, "--json").stdout)
+    chk_p, rep_p = (run_cli(c, other, "--model", model, "--json") for c in ("check", "replay"))
+    # not conformant: exit 1 from both (a CI gate; before: 0), 2 only for bad input
+    assert chk_p.returncode == rep_p.returncode == 1, (chk_p.stderr, rep_p.stderr)
+    chk, rep = json.loads(chk_p.stdout), json.loads(rep_p.stdout)
     assert not chk["conformant"]
     for n in names:
         assert chk["joints"][n]["violations"] == rep["joints"][n]["violations"] > 0

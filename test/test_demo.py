@@ -79,8 +79,9 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     # the monitor's verdicts equal `reachset check` on the same bag
     chk = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "check", str(record), "--model",
                           res["monitor_model"], "--json"], capture_output=True, text=True, timeout=300)
-    assert chk.returncode == 0, chk.stderr
+    assert chk.returncode == 1, chk.stderr          # not conformant (the fault): exit 1, a CI gate
     chk = json.loads(chk.stdout)
+    assert not chk["conformant"]
     first_check = min((j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"]),
                       default=None)
     # a violation is a margin < 0 (a warm-up tick, nothing checked yet, is not conformant but no violation)

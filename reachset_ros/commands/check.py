@@ -1,4 +1,6 @@
-"""``reachset check``: batch Theorem-1 conformance check of bags against a model."""
+"""``reachset check``: batch Theorem-1 conformance check of bags against a model.
+
+Exit status: 0 conformant, 1 not conformant (so it can gate a CI job), 2 bad input."""
 from ..conformance import model as mdl
 from ..conformance.theorem1 import Theorem1, check, deviation_extremes
 from ..errors import ReachsetError
@@ -45,3 +47,4 @@ def run(args):
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
         + (f", first at {j['first_violation_ns']} ns" if j["first_violation_ns"] is not None else "")
         for n, j in joints.items()))
+    return 0 if result["conformant"] else 1

@@ -107,3 +107,4 @@ def run(args):
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks" for n, j in joints.items())
         + f"\n{ticks} ticks, {d.mean():.0f} us mean per tick")
+    return 0 if result["conformant"] else 1      # 1: not conformant (a CI gate), 2: bad input
