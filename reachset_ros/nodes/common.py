@@ -62,7 +62,12 @@ def spin_node(node_cls, args=None, **kwargs):
     a flag that the loop checks between callbacks, so no callback is cut off halfway (a
     tick half published, a bag half written).
     """
-    rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+    argv = list(args if args is not None else sys.argv)
+    own = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
+    if "-h" in own or "--help" in own:
+        print(node_help(node_cls))        # before rclpy: nothing starts
+        sys.exit(0)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = node_cls(**kwargs)
     except ReachsetError as e:
@@ -70,6 +75,7 @@ def spin_node(node_cls, args=None, **kwargs):
         print(f"{node_cls.__name__}: error: {e}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
+    log_start_summary(node)
     executor = make_executor()
     executor.add_node(node)
     node.callback_errors = 0
@@ -81,6 +87,42 @@ def spin_node(node_cls, args=None, **kwargs):
             node.close()
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def node_help(node_cls):
+    """``--help`` of a node's console script: usage, the module's docstring, where the
+    parameters are documented; printed without starting rclpy or the node."""
+    module = sys.modules[node_cls.__module__]
+    name = node_cls.__module__.rsplit(".", 1)[-1]
+    if name == "__main__":          # python -m reachset_ros.nodes.X: the script's file name
+        name = os.path.basename(sys.argv[0]).removesuffix(".py")
+    return "\n".join([
+        f"usage: {name} [--help] [--ros-args [-p NAME:=VALUE]... [--params-file FILE] [-r FROM:=TO]...]", "",
+        (module.__doc__ or "").strip(), "",
+        "ROS arguments (after --ros-args): -p NAME:=VALUE sets a parameter, --params-file FILE loads a ROS 2",
+        "parameter file (e.g. config/lwa4p.yaml), -r FROM:=TO remaps a topic or the node name",
+        "(-r __node:=NAME), -r __ns:=/NS sets a namespace.",
+        f"Parameters, topics and services of {name}: docs/nodes.md (or, while it runs,",
+        f"`ros2 param describe /{name} NAME`)."])
+
+
+def log_start_summary(node):
+    """One INFO line when a node is up: what it subscribes to and publishes, its timers'
+    rates, the files and directories its parameters name."""
+    subs = sorted({s.topic_name for s in node.subscriptions})
+    pubs = sorted({p.topic_name for p in node.publishers} - {"/rosout", "/parameter_events"})
+    srvs = sorted({s.srv_name for s in node.services if not s.srv_name.rsplit("/", 1)[-1].startswith(
+        ("describe_parameters", "get_parameter", "list_parameters", "set_parameters", "get_type_description"))})
+    rates = sorted({round(1e9 / t.timer_period_ns, 3) for t in node.timers if t.timer_period_ns > 0}, reverse=True)
+    files = []
+    for name, p in sorted(node._parameters.items()):
+        if any(w in name for w in ("file", "dir", "output", "params")) and isinstance(p.value, str) and p.value:
+            files.append(f"{name}={os.path.abspath(p.value)}")
+    node.get_logger().info(
+        "up: subscribes " + (", ".join(subs) or "nothing") + "; publishes " + (", ".join(pubs) or "nothing")
+        + ("; services " + ", ".join(srvs) if srvs else "")
+        + ("; timers " + ", ".join(f"{r:g} Hz" for r in rates) if rates else "")
+        + ("; files " + ", ".join(files) if files else ""))
 
 
 def spin_until_signal(node, executor):

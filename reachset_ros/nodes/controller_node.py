@@ -56,8 +56,9 @@ DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 class ControllerNode(Node):
     def __init__(self):
         super().__init__("controller_node")
-        self.declare_parameter("joints", DEFAULT_JOINTS, desc("joints; /effort_commands uses this order"))
-        self.declare_parameter("robot_params", "", desc("identified robot parameters YAML ('' = URDF values)"))
+        self.declare_parameter("joints", DEFAULT_JOINTS, desc("joints; /effort_commands uses this order", read_only=True))
+        self.declare_parameter("robot_params", "", desc("identified robot parameters YAML ('' = URDF values)",
+                                                        read_only=True))
         declare_certificate_parameters(self)
         self.declare_parameter("dt", 0.004, desc("tick period, s (the observer's; a model must have the same)",
                                                  1e-4, 1.0, read_only=True))
@@ -68,7 +69,8 @@ class ControllerNode(Node):
         self.declare_parameter("wait_for_monitor", False,
                                desc("hold the joints (braking law) until the first /safe_stop message; the monitor "
                                     "publishes its state, latched, when it starts, so a (re)started controller "
-                                    "never moves the arm before it knows whether a safe stop is latched"))
+                                    "never moves the arm before it knows whether a safe stop is latched",
+                                    read_only=True))
         self.declare_parameter("stop_category", 1, desc("safe-stop category (IEC 60204-1): 1 = controlled stop, then "
                                                         "the holding brakes; 2 = controlled stop, held by the "
                                                         "braking law", 1, 2, integer=True))

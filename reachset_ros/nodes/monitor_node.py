@@ -228,7 +228,8 @@ class MonitorNode(Node):
                                                                "needs, before a fault",
                                                                1, 10000, integer=True))
         self.declare_parameter("window_dir", "bags/safe_stop", desc("where offending windows are written"))
-        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("dt", 0.004, desc("tick period, s (the watchdog's timer, read at start-up)", 1e-4, 1.0,
+                                                 read_only=True))
         self.declare_parameter("reset_clean_ticks", -1,
                                desc("~/reset clears an active stop only after this many consecutive ticks checked "
                                     "to the horizon, all conformant, with no fault (the violating condition has "

@@ -58,9 +58,10 @@ def make_fault(kind, joint, magnitude, start_s):
 class SimNode(Node):
     def __init__(self):
         super().__init__("sim_node")
-        self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True))
-        self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise"))
-        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0))
+        self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True,
+                                               read_only=True))
+        self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise", read_only=True))
+        self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0, read_only=True))
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
                                     "before stepping with the previous one (0: free-running)", 0.0, 1.0))

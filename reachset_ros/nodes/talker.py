@@ -4,12 +4,11 @@ Used by the DDS self-test (``reachset selftest``) and the foundation tests: it p
 custom interfaces, Fast DDS and parameter services work between processes. Its one
 parameter ``acceleration`` (rad/s^2) is the value it publishes for every joint.
 """
-import sys
-
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from reachset_msgs.msg import PlantInput
+
+from .common import spin_node
 
 
 class PlantInputTalker(Node):
@@ -35,15 +34,7 @@ class PlantInputTalker(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args if args is not None else sys.argv)
-    node = PlantInputTalker()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(PlantInputTalker, args)
 
 
 if __name__ == "__main__":
