@@ -7,6 +7,7 @@ test_synthesis.py; 1000 ticks and a small search, a few seconds per synthesis), 
 parameter is read back through the nodes' ``get_parameters`` services.
 """
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -33,7 +34,7 @@ INITIAL = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1
            "eps": [0.01]}
 INITIAL_U_MAX = [26.0, 24.0, 26.0, 26.0, 100.0, 100.0]
 NAMES = {"controller_node": ["joints", "observer", "controller", *GAIN_KEYS, "u_max", "model_file", "u_ff_bound"],
-         "observer_node": ["joints", "dt", "observer", "controller", *GAIN_KEYS],
+         "observer_node": ["joints", "dt", "observer", "controller", *GAIN_KEYS, "u_max", "model_file"],
          "monitor_node": ["joints", "model_file"],
          "synthesis_node": ["model_file", "observer"]}
 
@@ -168,8 +169,20 @@ def test_single_joint_synthesis_applies_by_joint_name_and_equals_the_cli(ros, no
     assert after["controller_node"]["u_max"] == INITIAL_U_MAX[:IDX] + [want["u_max"]] + INITIAL_U_MAX[IDX + 1:]
     assert want["u_max"] != INITIAL_U_MAX[IDX]
     assert after["controller_node"]["model_file"] == model
+    assert after["observer_node"]["model_file"] == model          # the pair's gate has the model too
     assert after["monitor_node"]["model_file"] == model
     assert after["synthesis_node"]["model_file"] == model
+    assert Path(model).is_absolute()                              # handed to other nodes (issue 19.6)
+    # the applied values as a ROS 2 params file, so a restart keeps them (issue 19.6)
+    m = re.search(r"parameters in (\S+\.params\.yaml)", res.message)
+    assert m, res.message
+    doc = yaml.safe_load(Path(m.group(1)).read_text())
+    for node in ("controller_node", "observer_node"):
+        p = doc[node]["ros__parameters"]
+        for k in GAIN_KEYS:
+            if k in p:
+                assert p[k] == after[node][k], (node, k)
+        assert p["model_file"] == model and p["u_max"] == after[node]["u_max"]
 
 
 def test_failed_synthesis_changes_no_parameter(ros, nodes, fresh, monitor, tmp_path):

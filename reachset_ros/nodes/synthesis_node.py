@@ -41,6 +41,7 @@ from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
 from .. import launch
+from ..atomic import write_yaml
 from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..systems.gains import Gains, certify
@@ -206,7 +207,9 @@ class SynthesisNode(Node):
                 if not applied:
                     res.success, res.message = False, f"{msg}; NOT applied: {why}"
                 else:
-                    res.message = f"{msg}; applied to {', '.join(self.get_parameter('targets').value)}"
+                    res.message = (f"{msg}; applied to {', '.join(self.get_parameter('targets').value)}"
+                                   + (f"; parameters in {self.applied_params_file}"
+                                      if getattr(self, "applied_params_file", None) else ""))
         resp.success, resp.message, resp.result = res.success, res.message, res
         self.pub.publish(res)
         if res.success:
@@ -221,7 +224,8 @@ class SynthesisNode(Node):
             return False, f"unknown mode {mode!r} (combined, separate, reidentify)", None, ""
         if not req.bags:
             return False, "no bags given", None, ""
-        workdir = Path(self.get_parameter("workdir").value)
+        # absolute: the model path is handed to other nodes, whose working directory may differ
+        workdir = Path(self.get_parameter("workdir").value).resolve()
         workdir.mkdir(parents=True, exist_ok=True)
         self.count += 1
         out = workdir / f"model_{int(time.time())}_{self.count}_{mode}.yaml"
@@ -383,7 +387,24 @@ class SynthesisNode(Node):
                 return False, f"{node} refused: {one_line(why)}; {self.roll_back(done)}"
             done.append((node, previous))
         self.set_parameters([Parameter("model_file", value=model_file)])
+        self.write_applied(plan)
         return True, ""
+
+    def write_applied(self, plan):
+        """The applied values as a ROS 2 parameter file (``--params-file``), so that a restart
+        keeps them: ``<workdir>/applied_gains.params.yaml``, written atomically, logged."""
+        doc = {}
+        for node, values, _ in plan:
+            doc[node] = {"ros__parameters": {k: (list(v) if isinstance(v, (list, tuple)) else v)
+                                             for k, v in values.items()}}
+        path = Path(self.get_parameter("workdir").value).resolve() / "applied_gains.params.yaml"
+        try:
+            write_yaml(path, doc, header="# written by synthesis_node after applying a synthesis; "
+                                          "use with --ros-args --params-file (or reachset up --params-file)\n")
+            self.applied_params_file = str(path)
+            self.get_logger().info(f"applied parameters written to {path}")
+        except ReachsetError as e:
+            self.get_logger().error(f"could not write the applied parameters: {e}")
 
     def roll_back(self, done):
         """Set the targets in ``done`` (``(node, previous values)``) back, the last first.
