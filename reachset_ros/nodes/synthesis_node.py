@@ -177,8 +177,9 @@ class SynthesisNode(Node):
         self.declare_parameter("observer", "hg", desc("observer of combined/separate synthesis: hg | eso"))
         self.declare_parameter("extra_args", [""], desc("extra `reachset synthesize` arguments"))
         self.declare_parameter("inflation", -1.0, desc("the monitor's set inflation the gains are certified for "
-                                                       "(`reachset synthesize --inflation`); < 0: synthesize's "
-                                                       "default (0; reidentify: the current model's)", -1.0, 1e3))
+                                                       "(`reachset synthesize --inflation`); < 0: the current "
+                                                       "model's (model_file: calibrated by identify --validate or "
+                                                       "synthesised for), 0 without one", -1.0, 1e3))
         self.declare_parameter("targets", ["controller_node", "observer_node", "monitor_node"],
                                desc("nodes the gains/model are applied to"))
         self.pub = self.create_publisher(SynthesisResult, "synthesis/result", SAFE_STOP_QOS)
@@ -241,6 +242,14 @@ class SynthesisNode(Node):
         else:
             cmd += ["--observer", self.get_parameter("observer").value]
         inflation = float(self.get_parameter("inflation").value)
+        current = self.get_parameter("model_file").value
+        if inflation < 0 and current:
+            # default: the current model's inflation (calibrated on held-out data by
+            # `identify --validate`, or the one the gains were synthesised for)
+            try:
+                inflation = float(mdl.load(current).inflation)
+            except ReachsetError as e:
+                return False, f"the current model {current}: {e}", None, ""
         if inflation >= 0:
             cmd += ["--inflation", repr(inflation)]
         cmd += [a for a in self.get_parameter("extra_args").value if a]
