@@ -124,7 +124,7 @@ def reference_columns(path, topics=(bags.JOINT_STATES, bags.PLANT_INPUT)):
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = TS.deserialize_cdr(raw, conn.msgtype)
-            vals = msg.position if conn.topic == bags.JOINT_STATES else msg.acceleration
+            vals = msg.position if conn.msgtype == bags.JOINT_STATE_TYPE else msg.acceleration
             cols[conn.topic].add(bags.header_stamp_ns(msg), msg.name, vals)
     return cols
 
@@ -181,8 +181,10 @@ def write_rosbags(path, stream, storage="mcap", compression=None):
             w.write(conns[topic], t, TS.serialize_cdr(msg, msgtype))
 
 
-def write_mcap_lib(path, stream, compression, index):
-    """A rosbag2 directory whose MCAP file is written by the mcap library (small chunks)."""
+def write_mcap_lib(path, stream, compression, index, repeat=True):
+    """A rosbag2 directory whose MCAP file is written by the mcap library (small chunks);
+    ``repeat=False``: the summary does not repeat the Channel and Schema records (allowed by
+    the MCAP spec; they are only in the data section)."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, IndexType
     from mcap.writer import Writer as McapWriter
@@ -192,7 +194,7 @@ def write_mcap_lib(path, stream, compression, index):
         summary = make_reader(fh).get_summary()
     with open(f, "wb") as fh:
         w = McapWriter(fh, chunk_size=4096, compression=getattr(CompressionType, compression),
-                       index_types=getattr(IndexType, index))
+                       index_types=getattr(IndexType, index), repeat_channels=repeat, repeat_schemas=repeat)
         w.start("ros2", "test")
         ids = {}
         for cid, ch in summary.channels.items():
@@ -248,6 +250,37 @@ def test_reader_equals_rosbags_on_many_chunk_mcap(tmp_path, compression, index, 
     assert want[bags.JOINT_STATES].count == 400
     assert_columns_equal(bags.read_topics([tmp_path / "b"]), want)
     assert len(rosbags_reads) == (index == "NONE")
+
+
+def test_mcap_whose_summary_does_not_repeat_the_channels_is_read(tmp_path, rosbags_reads):
+    """Issue 15.5(a): such an MCAP read as empty (the fast path found no channel in the
+    summary); it is read as rosbags reads it (all 400 messages), through rosbags."""
+    stream = messy_stream()
+    write_mcap_lib(tmp_path / "b", stream, "ZSTD", "ALL", repeat=False)
+    want = reference_columns(tmp_path / "b")
+    assert want[bags.JOINT_STATES].count == 400
+    assert_columns_equal(bags.read_topics([tmp_path / "b"]), want)
+    assert len(rosbags_reads) == 1
+
+
+def test_topics_are_read_by_message_type_not_by_name(tmp_path):
+    """Issue 15.5(b): a JointState topic with another name than /joint_states was read as if
+    it were a PlantInput ("unreadable bag ... tuple.index"); the value field is chosen by the
+    message type. A topic of another type is refused naming it."""
+    path = tmp_path / "b"
+    with bags.BagWriter(path) as w:
+        for i in range(30):
+            t = T0 + DT_NS * i
+            w.write("/arm/joint_states", bags.joint_state(t, ["a", "b"], [0.1 * i, -0.1 * i]), t,
+                    bags.JOINT_STATE_TYPE)
+            w.write("/arm/u", bags.plant_input(t, ["a", "b"], [1.0, 2.0]), t + 1000, bags.PLANT_INPUT_TYPE)
+            w.write("/arm/onset", bags.header(t), t + 2000, "std_msgs/msg/Header")
+    topics = ("/arm/joint_states", "/arm/u")
+    got = bags.read_topics([path], topics)
+    assert_columns_equal(got, reference_columns(path, topics))
+    assert np.frombuffer(got["/arm/joint_states"].values["b"], np.float64)[-1] == -0.1 * 29
+    with pytest.raises(ReachsetError, match="topic /arm/onset has type std_msgs/msg/Header; expected"):
+        bags.read_topics([path], ("/arm/joint_states", "/arm/onset"))
 
 
 def test_big_endian_messages_are_read(tmp_path, rosbags_reads):

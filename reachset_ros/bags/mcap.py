@@ -144,6 +144,10 @@ def _read_mcap_file(fpath, src, wanted, sinks):
             raise _Damaged(f"no valid MCAP summary ({type(e).__name__}: {e})") from None
         if summary is None or not summary.chunk_indexes:
             raise _Fallback("unindexed MCAP")
+        if not set(wanted) <= {ch.topic for ch in summary.channels.values()}:
+            # a summary need not repeat the Channel/Schema records (the MCAP spec makes them
+            # optional there): they are in the data section, which rosbags reads
+            raise _Fallback("MCAP summary without the wanted channels")
         chans = {}
         for cid, ch in summary.channels.items():
             if ch.topic in wanted:

@@ -31,7 +31,7 @@ from rosbags.rosbag2 import Reader
 from ..errors import ReachsetError
 from .cdr import FAST_TYPES, CdrError, _rosbags_deserializer, decode_rows
 from .mcap import _Damaged, _Fallback, _preflight, _read_mcap_file, _storage_files
-from .messages import JOINT_STATES, PLANT_INPUT, header_stamp_ns, typestore
+from .messages import JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE, header_stamp_ns, typestore
 
 
 @dataclass(frozen=True)
@@ -133,8 +133,18 @@ def _check_bag_path(path: Path):
         raise ReachsetError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
 
 
-def _value_field(topic):
-    return "position" if topic == JOINT_STATES else "acceleration"
+#: the value array read from each message type: the joints' positions (y_p) of a JointState,
+#: the plant input u_p of a PlantInput
+VALUE_FIELDS = {JOINT_STATE_TYPE: "position", PLANT_INPUT_TYPE: "acceleration"}
+
+
+def _value_field(topic, msgtype):
+    """The field read from ``topic``, chosen by its message type (not by its name: a
+    JointState topic may have any name); ReachsetError for another type."""
+    if msgtype not in VALUE_FIELDS:
+        raise ReachsetError(f"topic {topic} has type {msgtype}; expected "
+                            + " or ".join(sorted(VALUE_FIELDS)))
+    return VALUE_FIELDS[msgtype]
 
 
 class _Sink:
@@ -340,7 +350,7 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
                 for t in topics:
                     if t not in types:
                         raise ReachsetError(f"{path}: topic {t} missing")
-                wanted = {t: (types[t], _value_field(t)) for t in topics}
+                wanted = {t: (types[t], _value_field(t, types[t])) for t in topics}
                 marks = {t: s.mark() for t, s in sinks.items()}
                 try:
                     storage, files = _storage_files(path)
