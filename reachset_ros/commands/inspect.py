@@ -1,0 +1,132 @@
+"""``reachset inspect``: what a bag holds, and whether ``reachset identify`` can use it.
+
+For every topic: type, message count, rate from the log times; for JointState and
+PlantInput topics also from the header stamps: the sampling period (median stamp step) and
+its jitter, the joint names, and which of position/velocity/effort are filled. Then the
+``identify`` command that works on the bags, or why none can (issue 15, item 1).
+"""
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from ..bags.messages import (JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE, header_stamp_ns,
+                             typestore)
+from ..bags.series import _check_bag_path
+from ..errors import ReachsetError
+from . import emit
+
+NAME = "inspect"
+HELP = "what a bag holds (topics, rates, joints, sampling period) and the identify command for it"
+
+#: the arrays of each type whose filling is reported
+FIELDS = {JOINT_STATE_TYPE: ("position", "velocity", "effort"), PLANT_INPUT_TYPE: ("acceleration",)}
+
+
+def add_arguments(p):
+    p.add_argument("bags", nargs="+", help="rosbag2 directories")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _times(values):
+    """Rate, median step, jitter of sorted times (ns)."""
+    t = np.sort(np.asarray(values, dtype=np.int64))
+    if len(t) < 2:
+        return {"rate_hz": 0.0, "period_ms": None, "jitter_ms": None}
+    d = np.diff(t) * 1e-6
+    med = float(np.median(d))
+    return {"rate_hz": float((len(t) - 1) / ((t[-1] - t[0]) * 1e-9)) if t[-1] > t[0] else 0.0,
+            "period_ms": med, "jitter_ms": {"std": float(np.std(d)), "max_abs_dev": float(np.max(np.abs(d - med)))}}
+
+
+def inspect_bags(paths):
+    """The per-topic report of the bags (merged over the bags by topic)."""
+    ts = typestore()
+    topics = {}
+    for p in paths:
+        path = Path(p)
+        _check_bag_path(path)
+        try:
+            with Reader(path) as reader:
+                for c in reader.connections:
+                    e = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0, "log": [], "stamps": [],
+                                                    "names": [], "filled": {}})
+                    if e["type"] != c.msgtype:
+                        raise ReachsetError(f"{path}: topic {c.topic} has type {c.msgtype} here, {e['type']} before")
+                for conn, t, raw in reader.messages():
+                    e = topics[conn.topic]
+                    e["count"] += 1
+                    e["log"].append(t)
+                    if conn.msgtype in FIELDS:
+                        msg = ts.deserialize_cdr(raw, conn.msgtype)
+                        e["stamps"].append(header_stamp_ns(msg))
+                        names = list(msg.name)
+                        if names not in e["names"] and len(e["names"]) < 8:
+                            e["names"].append(names)
+                        for f in FIELDS[conn.msgtype]:
+                            n = len(getattr(msg, f))
+                            e["filled"][f] = e["filled"].get(f, True) and n == len(names) and n > 0
+        except ReachsetError:
+            raise
+        except Exception as ex:  # rosbags raises many types for damaged or unsupported bags
+            first = str(ex).splitlines()[0] if str(ex) else ""
+            raise ReachsetError(f"{path}: unreadable bag ({type(ex).__name__}" + (f": {first})" if first else ")"))
+    out = {}
+    for topic, e in sorted(topics.items()):
+        row = {"type": e["type"], "count": e["count"], "log_time": _times(e["log"])}
+        if e["type"] in FIELDS:
+            row["stamps"] = _times(e["stamps"])
+            row["joint_names"] = e["names"]
+            row["filled"] = e["filled"]
+        out[topic] = row
+    return out
+
+
+def identify_command(paths, topics):
+    """(command or None, reason): the ``reachset identify`` that works on these bags."""
+    js = [t for t, r in topics.items() if r["type"] == JOINT_STATE_TYPE]
+    pi = [t for t, r in topics.items() if r["type"] == PLANT_INPUT_TYPE]
+    if not js:
+        return None, "no sensor_msgs/msg/JointState topic"
+    if JOINT_STATES not in js:
+        return None, (f"the JointState topic is {', '.join(js)}, not {JOINT_STATES}; topic mapping "
+                      "(--joint-states-topic) is not built yet (issue 15, item 2)")
+    if PLANT_INPUT not in pi:
+        why = f"no {PLANT_INPUT} (reachset_msgs/msg/PlantInput)"
+        if topics[JOINT_STATES].get("filled", {}).get("effort"):
+            why += ("; /joint_states has effort, from which u_p could be computed with the robot's URDF "
+                    "(--input effort, issue 15 item 3, not built yet)")
+        return None, why
+    r = topics[JOINT_STATES]
+    names = r["joint_names"]
+    if not names or any(not n for n in names):
+        return None, f"{JOINT_STATES} messages without joint names (--joint-names is not built yet)"
+    if len(names) > 1:
+        joints = sorted(set.intersection(*(set(n) for n in names)))
+    else:
+        joints = list(names[0])
+    period = r["stamps"]["period_ms"]
+    if not period:
+        return None, f"fewer than two {JOINT_STATES} messages"
+    dt = round(period * 1e-3, 6)
+    cmd = "reachset identify " + " ".join(str(p) for p in paths) + f" --joints {','.join(joints)} --dt {dt:g}"
+    return cmd, f"sampling period {period:.4g} ms measured from the {JOINT_STATES} stamps"
+
+
+def run(args):
+    topics = inspect_bags(args.bags)
+    cmd, why = identify_command(args.bags, topics)
+    result = {"bags": [str(p) for p in args.bags], "topics": topics,
+              "identify": {"command": cmd, "reason": why}}
+    lines = []
+    for t, r in topics.items():
+        lt = r["log_time"]
+        line = f"{t} [{r['type']}]: {r['count']} messages, {lt['rate_hz']:.4g} Hz (log time)"
+        if "stamps" in r and r["stamps"]["period_ms"] is not None:
+            s = r["stamps"]
+            line += (f"; stamp period {s['period_ms']:.4g} ms (jitter std {s['jitter_ms']['std']:.3g} ms, "
+                     f"max {s['jitter_ms']['max_abs_dev']:.3g} ms); joints {r['joint_names'][0] if r['joint_names'] else []}"
+                     f"; filled: {', '.join(k for k, v in r['filled'].items() if v) or 'none'}")
+        lines.append(line)
+    lines.append(("identify: " + cmd) if cmd else ("no identify command works: " + why))
+    emit(args, result, "\n".join(lines))
