@@ -46,9 +46,37 @@ def test_inspect_says_why_no_command_works(tmp_path):
             v.write("/arm/joint_states", bags.joint_state(t, ["a"], [0.1 * i]), t, bags.JOINT_STATE_TYPE)
             v.write(bags.PLANT_INPUT, bags.plant_input(t, ["a"], [0.0]), t)
     d = json.loads(run("inspect", only_js, "--json").stdout)
-    assert d["identify"]["command"] is None and "no /plant_input" in d["identify"]["reason"]
+    assert d["identify"]["command"] is None and "no reachset_msgs/msg/PlantInput topic" in d["identify"]["reason"]
     assert "effort" in d["identify"]["reason"] and d["topics"][bags.JOINT_STATES]["filled"]["effort"]
-    d = json.loads(run("inspect", renamed, "--json").stdout)
-    assert d["identify"]["command"] is None and "/arm/joint_states" in d["identify"]["reason"]
+    d = json.loads(run("inspect", renamed, "--json").stdout)       # issue 15.2: the topic is mapped
+    assert "--joint-states-topic /arm/joint_states" in d["identify"]["command"], d["identify"]
     p = run("inspect", tmp_path / "missing")
     assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "no such bag" in p.stderr
+
+
+def test_topic_mapping_reads_renamed_topics_as_the_standard_ones(tmp_path):
+    """Issue 15.2: ``--joint-states-topic`` and ``--input-topic`` on identify/check/replay/
+    synthesize: a bag whose topics have other names gives the same model as the same data
+    under the standard names; a topic of the wrong type is refused naming it (exit 2)."""
+    recs = sr.simulate_recordings(("arm_1_joint",), 2500, seed=5)
+    std, ren = tmp_path / "std", tmp_path / "ren"
+    sr.write_recordings(std, recs, reference=False, estimate=False)
+    from rosbags.rosbag2 import Reader
+    with Reader(std) as r, bags.BagWriter(ren) as w:
+        rename = {bags.JOINT_STATES: "/robot/joint_states", bags.PLANT_INPUT: "/robot/u"}
+        for conn, t, raw in r.messages():
+            w.write_raw(rename[conn.topic], bytes(raw), t, conn.msgtype)
+    a = run("identify", std, "--json")
+    b = run("identify", ren, "--joint-states-topic", "/robot/joint_states", "--input-topic", "/robot/u", "--json")
+    assert a.returncode == 0 and b.returncode == 0, (a.stderr, b.stderr)
+    ja, jb = json.loads(a.stdout)["joints"], json.loads(b.stdout)["joints"]
+    assert ja["arm_1_joint"]["alpha_w"] == jb["arm_1_joint"]["alpha_w"]
+    assert ja["arm_1_joint"]["alpha_v"] == jb["arm_1_joint"]["alpha_v"]
+    p = run("identify", ren, "--json")                       # without the mapping: missing topic
+    assert p.returncode == 2 and "topic /joint_states missing" in p.stderr
+    p = run("identify", ren, "--joint-states-topic", "/robot/joint_states", "--input-topic",
+            "/robot/joint_states")
+    assert p.returncode == 2 and "both /robot/joint_states" in p.stderr
+    p = run("identify", ren, "--joint-states-topic", "/robot/u", "--input-topic", "/robot/joint_states")
+    assert p.returncode == 2 and "topic /robot/u has type reachset_msgs/msg/PlantInput; expected " \
+                                 "sensor_msgs/msg/JointState" in p.stderr, p.stderr

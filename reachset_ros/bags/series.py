@@ -319,7 +319,7 @@ def _read_rosbags(reader, src, wanted, sinks, batch=8192):
         flush(topic)
 
 
-def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
+def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
     """Stream ``topics`` of the bags into per-joint columns.
 
     MCAP bags are read chunk by chunk (the mcap library for the file structure, a
@@ -327,6 +327,9 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
     ``reachset_msgs/msg/PlantInput``); sqlite3 bags, compressed bag files, unindexed MCAP
     files and other message types go through rosbags. Either way messages are taken in
     the order rosbags yields them and only compact arrays are kept.
+
+    The array read from each topic is chosen by its message type (``VALUE_FIELDS``), not
+    by its name; ``expect`` (``{topic: msgtype}``) refuses a topic of another type.
 
     Returns ``{topic: _TopicColumns}``. Raises :class:`ReachsetError` naming the bag (and
     the damaged file) for unreadable bags and the topic when one is missing.
@@ -350,6 +353,9 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT)):
                 for t in topics:
                     if t not in types:
                         raise ReachsetError(f"{path}: topic {t} missing")
+                for t, want in (expect or {}).items():
+                    if types.get(t) != want:
+                        raise ReachsetError(f"{path}: topic {t} has type {types.get(t)}; expected {want}")
                 wanted = {t: (types[t], _value_field(t, types[t])) for t in topics}
                 marks = {t: s.mark() for t, s in sinks.items()}
                 try:
@@ -428,7 +434,7 @@ def segments_of(stamps, valid, dt):
     return tuple(zip(starts.tolist(), stops.tolist()))
 
 
-def read_joint_series(paths, joints=None, dt=0.004):
+def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_INPUT)):
     """Per-joint paired (y, u_p) series from rosbag2 bags (MCAP or sqlite3).
 
     Each bag is read on its own and the bags' series are concatenated; a test case never
@@ -447,13 +453,17 @@ def read_joint_series(paths, joints=None, dt=0.004):
         order of ``/joint_states``.
     dt : float
         Sampling time, s.
+    topics : (str, str)
+        The measurement topic (sensor_msgs/msg/JointState, its ``position`` is y_p) and the
+        plant-input topic (reachset_msgs/msg/PlantInput); default ``/joint_states``,
+        ``/plant_input`` (the CLI's ``--joint-states-topic``, ``--input-topic``).
 
     Returns
     -------
     series : dict name -> JointSeries
     report : ReadReport
     """
-    parts = [_read_one(p, joints, dt) for p in paths]
+    parts = [_read_one(p, joints, dt, tuple(topics)) for p in paths]
     if len(parts) == 1:
         return parts[0]
     names = list(parts[0][0])
@@ -485,24 +495,27 @@ def read_joint_series(paths, joints=None, dt=0.004):
     return out, rep
 
 
-def _read_one(path, joints, dt):
+def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT)):
     paths = [path]
-    cols = read_topics(paths)
-    js, pi = cols[JOINT_STATES], cols[PLANT_INPUT]
+    y_topic, u_topic = topics
+    if y_topic == u_topic:
+        raise ReachsetError(f"the measurement and the plant-input topic are both {y_topic}")
+    cols = read_topics(paths, topics, expect={y_topic: JOINT_STATE_TYPE, u_topic: PLANT_INPUT_TYPE})
+    js, pi = cols[y_topic], cols[u_topic]
     rep = ReadReport()
-    rep.messages = {JOINT_STATES: js.count, PLANT_INPUT: pi.count}
-    rep.out_of_order = {JOINT_STATES: js.out_of_order, PLANT_INPUT: pi.out_of_order}
-    rep.name_list_changes = {JOINT_STATES: js.name_changes, PLANT_INPUT: pi.name_changes}
+    rep.messages = {y_topic: js.count, u_topic: pi.count}
+    rep.out_of_order = {y_topic: js.out_of_order, u_topic: pi.out_of_order}
+    rep.name_list_changes = {y_topic: js.name_changes, u_topic: pi.name_changes}
     common = [n for n in js.order if n in pi.stamps]
     if joints is None or list(joints) == ["all"]:
         joints = common
         rep.ignored_joints = sorted(set(js.order) ^ set(pi.order))
     if not joints:
-        raise ReachsetError(f"{', '.join(map(str, paths))}: no joint is on both {JOINT_STATES} and {PLANT_INPUT}")
+        raise ReachsetError(f"{', '.join(map(str, paths))}: no joint is on both {y_topic} and {u_topic}")
     out = {}
     joints = list(joints)
     for i, name in enumerate(joints):
-        for topic, c in ((JOINT_STATES, js), (PLANT_INPUT, pi)):
+        for topic, c in ((y_topic, js), (u_topic, pi)):
             if name not in c.stamps:
                 raise ReachsetError(f"joint {name} not found on {topic}")
         ys, yv, ydup = _unique_sorted(np.frombuffer(js.stamps[name], np.int64), np.frombuffer(js.values[name]))

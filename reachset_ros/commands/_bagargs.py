@@ -2,6 +2,7 @@
 from pathlib import Path
 
 from ..bags import read_joint_series
+from ..bags.messages import JOINT_STATES, PLANT_INPUT
 from ..conformance.kernels import require_horizon  # noqa: F401  (re-exported for the commands)
 from ..errors import ReachsetError
 
@@ -10,7 +11,16 @@ def add_bag_arguments(p, joints=True):
     p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 directories (MCAP or sqlite3)")
     if joints:
         p.add_argument("--joints", default="all", help="comma-separated joint names, or 'all' (default)")
+    p.add_argument("--joint-states-topic", default=JOINT_STATES, metavar="T",
+                   help=f"the measurement topic, sensor_msgs/msg/JointState: its position is y_p (default {JOINT_STATES})")
+    p.add_argument("--input-topic", default=PLANT_INPUT, metavar="T",
+                   help=f"the plant-input topic, reachset_msgs/msg/PlantInput (default {PLANT_INPUT})")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def topics_of(args):
+    """(measurement topic, plant-input topic) of the command line."""
+    return (getattr(args, "joint_states_topic", JOINT_STATES), getattr(args, "input_topic", PLANT_INPUT))
 
 
 def parse_joints(text):
@@ -20,16 +30,17 @@ def parse_joints(text):
     return None if names == ["all"] else names
 
 
-def load_series(bags, joints, dt=0.004, restrict=None):
-    """Per-joint series from the bags; ``restrict`` limits 'all' to the model's joints."""
+def load_series(bags, joints, dt=0.004, restrict=None, topics=(JOINT_STATES, PLANT_INPUT)):
+    """Per-joint series from the bags; ``restrict`` limits 'all' to the model's joints;
+    ``topics``: (measurement topic, plant-input topic)."""
     names = parse_joints(joints) if isinstance(joints, str) else joints
     if names is None and restrict is not None:
-        series, report = read_joint_series(bags, None, dt)
+        series, report = read_joint_series(bags, None, dt, topics)
         missing = [j for j in restrict if j not in series]
         if missing:
             raise ReachsetError(f"joint {missing[0]} of the model not found in the bags")
         return {j: series[j] for j in restrict}, report
-    return read_joint_series([Path(b) for b in bags], names, dt)
+    return read_joint_series([Path(b) for b in bags], names, dt, topics)
 
 
 def check_out_path(out):

@@ -88,19 +88,23 @@ def identify_command(paths, topics):
     pi = [t for t, r in topics.items() if r["type"] == PLANT_INPUT_TYPE]
     if not js:
         return None, "no sensor_msgs/msg/JointState topic"
-    if JOINT_STATES not in js:
-        return None, (f"the JointState topic is {', '.join(js)}, not {JOINT_STATES}; topic mapping "
-                      "(--joint-states-topic) is not built yet (issue 15, item 2)")
-    if PLANT_INPUT not in pi:
-        why = f"no {PLANT_INPUT} (reachset_msgs/msg/PlantInput)"
-        if topics[JOINT_STATES].get("filled", {}).get("effort"):
-            why += ("; /joint_states has effort, from which u_p could be computed with the robot's URDF "
+    y_topic = JOINT_STATES if JOINT_STATES in js else js[0]
+    if len(js) > 1 and JOINT_STATES not in js:
+        return None, (f"several JointState topics ({', '.join(js)}): choose the measurement with "
+                      "--joint-states-topic")
+    if not pi:
+        why = "no reachset_msgs/msg/PlantInput topic"
+        if topics[y_topic].get("filled", {}).get("effort"):
+            why += (f"; {y_topic} has effort, from which u_p could be computed with the robot's URDF "
                     "(--input effort, issue 15 item 3, not built yet)")
         return None, why
-    r = topics[JOINT_STATES]
+    u_topic = PLANT_INPUT if PLANT_INPUT in pi else pi[0]
+    if len(pi) > 1 and PLANT_INPUT not in pi:
+        return None, f"several PlantInput topics ({', '.join(pi)}): choose one with --input-topic"
+    r = topics[y_topic]
     names = r["joint_names"]
     if not names or any(not n for n in names):
-        return None, f"{JOINT_STATES} messages without joint names (--joint-names is not built yet)"
+        return None, f"{y_topic} messages without joint names (--joint-names is not built yet)"
     if len(names) > 1:
         joints = sorted(set.intersection(*(set(n) for n in names)))
     else:
@@ -110,7 +114,11 @@ def identify_command(paths, topics):
         return None, f"fewer than two {JOINT_STATES} messages"
     dt = round(period * 1e-3, 6)
     cmd = "reachset identify " + " ".join(str(p) for p in paths) + f" --joints {','.join(joints)} --dt {dt:g}"
-    return cmd, f"sampling period {period:.4g} ms measured from the {JOINT_STATES} stamps"
+    if y_topic != JOINT_STATES:
+        cmd += f" --joint-states-topic {y_topic}"
+    if u_topic != PLANT_INPUT:
+        cmd += f" --input-topic {u_topic}"
+    return cmd, f"sampling period {period:.4g} ms measured from the {y_topic} stamps"
 
 
 def run(args):

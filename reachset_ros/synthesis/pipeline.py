@@ -140,7 +140,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                     bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
-                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None):
+                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -163,6 +163,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         Bound the reference error (Appendix B) over this class instead of the bags'
         ``/reference`` (which must then lie in it). Without it every joint needs recorded
         references (reidentify: or a class recorded in the model); otherwise refused.
+    topics : (str, str), optional
+        Measurement and plant-input topics (default ``/joint_states``, ``/plant_input``).
     inflation : float, optional
         The monitor checks the sets scaled by ``1 + inflation``; R*_u inside U_p is enforced
         and R*_e reported for those sets, and the model records it. Default 0 (reidentify: the
@@ -207,7 +209,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     if not (math.isfinite(inflation) and inflation >= 0):
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
-    series, report = read_joint_series(list(bags), names, plant.dt)
+    series, report = (read_joint_series(list(bags), names, plant.dt, tuple(topics)) if topics
+                      else read_joint_series(list(bags), names, plant.dt))
     names = list(series)
     cf.require_horizon(series, est.history, horizon, bags)
     if mode == "reidentify":
