@@ -216,8 +216,6 @@ class ControllerNode(Node):
                     model = mdl.load(p.value) if p.value else None
                 except ReachsetError as e:
                     return SetParametersResult(successful=False, reason=str(e))
-            if p.name in ("joints", "robot_params", "wait_for_monitor", "dt"):
-                return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
         try:
             cfg = self.validate(values, model)
         except ReachsetError as e:
@@ -283,19 +281,23 @@ class ControllerNode(Node):
             b.reason = f"{self.joints[j]}: {why}"
         self.brake_pub.publish(b)
 
-    def unusable_estimate(self, msg, what):
-        """An estimate the controller cannot use: every brake engages, a stop of its own latches."""
-        self.counters["bad_estimate"] += 1
-        stamp = stamp_ns(msg.header.stamp)
+    def latch_own_stop(self, stamp, why, detail):
+        """A stop of the controller's own (no usable estimate, a non-finite command): every
+        brake engages at once; latched, logged and on /diagnostics until the safe stop is reset."""
         if self.stop is None:
             self.stop = StopState(len(self.joints))
         before = int(self.stop.engaged.sum())
-        self.stop.engage_all(stamp, "no usable estimate")
+        self.stop.engage_all(stamp, why)
         self.counters["brakes_engaged"] += len(self.joints) - before
         if self.own_stop is None:
-            self.own_stop = f"no usable estimate at stamp {stamp} ({what})"
+            self.own_stop = f"{why} at stamp {stamp} ({detail})"
             self.get_logger().error(f"stop: {self.own_stop}; all holding brakes engaged until the safe stop is reset")
             self.publish_diagnostics()
+
+    def unusable_estimate(self, msg, what):
+        """An estimate the controller cannot use: every brake engages, a stop of its own latches."""
+        self.counters["bad_estimate"] += 1
+        self.latch_own_stop(stamp_ns(msg.header.stamp), "no usable estimate", what)
         if self.last_q is not None:     # hold where the arm was last seen (u_p = 0, at rest)
             self.publish_command(msg.header.stamp, self.last_q, np.zeros(len(self.joints)),
                                  np.zeros(len(self.joints)))
@@ -397,15 +399,7 @@ class ControllerNode(Node):
             # an absurd command is never sent: a stop of the controller's own, all brakes, and
             # the torque that holds the last usable position at rest (if that is finite)
             self.counters["bad_command"] += 1
-            stamp = stamp_ns(header_stamp)
-            if self.stop is None:
-                self.stop = StopState(len(self.joints))
-            self.stop.engage_all(stamp, "non-finite command")
-            if self.own_stop is None:
-                self.own_stop = f"non-finite command at stamp {stamp} (u_p {np.round(u, 4).tolist()})"
-                self.get_logger().error(f"stop: {self.own_stop}; all holding brakes engaged until the safe stop "
-                                        "is reset")
-                self.publish_diagnostics()
+            self.latch_own_stop(stamp_ns(header_stamp), "non-finite command", f"u_p {np.round(u, 4).tolist()}")
             u = np.zeros(len(self.joints))
             qf[self.idx] = self.last_q if self.last_q is not None else 0.0
             tau = robot.feedback_linearization(self.robot, self.data, qf, np.zeros_like(qdf),

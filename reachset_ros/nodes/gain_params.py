@@ -68,8 +68,6 @@ def u_max_array(value, n):
     return a
 
 
-
-
 def validate_pair(node, values, model):
     """The gate of both nodes: :func:`~reachset_ros.systems.gains.certify_pair` of the gains
     a proposed set of parameters gives (``values``: gain parameters, optionally u_max,

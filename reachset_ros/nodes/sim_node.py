@@ -152,8 +152,6 @@ class SimNode(Node):
                 to_stamp(h.stamp, onset)
                 self.onset_pub.publish(h)
                 self.get_logger().warning(f"fault injected: {h.frame_id}, first affected stamp {onset} ns")
-            if p.name in ("seed", "realistic", "dt"):
-                return SetParametersResult(successful=False, reason=f"{p.name} is fixed at start-up")
         return SetParametersResult(successful=True)
 
     def tick(self):

@@ -234,18 +234,18 @@ class SynthesisNode(Node):
                "--out", str(out), "--json"]
         if req.joints:
             cmd += ["--joints", ",".join(req.joints)]
+        current = self.get_parameter("model_file").value
         if mode == "reidentify":
-            current = self.get_parameter("model_file").value
             if not current:
                 return False, "reidentify needs a current model (none applied yet)", None, ""
             cmd += ["--model", current]
         else:
             cmd += ["--observer", self.get_parameter("observer").value]
         inflation = float(self.get_parameter("inflation").value)
-        current = self.get_parameter("model_file").value
-        if inflation < 0 and current:
+        if inflation < 0 and current and mode != "reidentify":
             # default: the current model's inflation (calibrated on held-out data by
-            # `identify --validate`, or the one the gains were synthesised for)
+            # `identify --validate`, or the one the gains were synthesised for); reidentify
+            # takes it from --model itself
             try:
                 inflation = float(mdl.load(current).inflation)
             except ReachsetError as e:
