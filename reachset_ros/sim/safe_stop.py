@@ -14,7 +14,7 @@ fault's onset: the node tests and the demo cover detection).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -82,7 +82,6 @@ def simulate_safe_stop(fault, before=2.0, stop_delay=0.02, after=3.0, policy=Non
     -------
     StopRun
     """
-    from dataclasses import replace
     policy = policy or StopPolicy()
     cfg = sim_config or simm.SimConfig.realistic(seed=seed)
     arm = simm.SimulatedArm(cfg, seed=seed)
@@ -112,7 +111,6 @@ def simulate_safe_stop(fault, before=2.0, stop_delay=0.02, after=3.0, policy=Non
     tau = np.array(arm.state.tau_pending)
     for k in range(T):
         stamps[k] = m.stamp_ns
-        _, qt, qdt = arm.true_state
         rec["q"][k], rec["qd"][k] = m.q_measured, m.qd_measured
         rec["q_true"][k], rec["qd_true"][k] = arm.state.q_prev, arm.state.qd_prev
         y = np.asarray(m.q_measured, dtype=np.float64)
