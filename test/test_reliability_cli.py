@@ -140,7 +140,7 @@ def make_bad_bag(case, tmp_path, data):
         return path, [str(path), "no such bag"]
     if case == "regular_file":
         path.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
-        return path, [str(path), "not a rosbag2 directory"]
+        return path, [str(path), "not a rosbag2 bag", ".mcap or .db3 file"]
     if case == "empty_dir":
         path.mkdir()
         return path, [str(path), "not a rosbag2 directory", "metadata.yaml"]

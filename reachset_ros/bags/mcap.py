@@ -133,7 +133,8 @@ def _scanned_records(B, data):
 def _read_mcap_file(fpath, src, wanted, sinks):
     """Read the wanted topics of one MCAP file chunk by chunk into ``sinks``.
 
-    ``wanted``: topic -> (msgtype, field). Uses the mcap library for the file structure
+    ``wanted``: topic -> (msgtype, [(key, field), ...]): each field of the topic's
+    messages goes to ``sinks[key]``. Uses the mcap library for the file structure
     (summary, chunk index, chunk records) and numpy for the messages.
     """
     with open(fpath, "rb") as f:
@@ -152,7 +153,7 @@ def _read_mcap_file(fpath, src, wanted, sinks):
         for cid, ch in summary.channels.items():
             if ch.topic in wanted:
                 schema = summary.schemas.get(ch.schema_id)
-                msgtype, fld = wanted[ch.topic]
+                msgtype = wanted[ch.topic][0]
                 if ch.message_encoding != "cdr" or schema is None or schema.name != msgtype:
                     raise _Fallback(f"channel {ch.topic} is not {msgtype} in CDR")
                 chans[cid] = ch.topic
@@ -186,24 +187,38 @@ def _read_mcap_file(fpath, src, wanted, sinks):
                     continue
                 L = _u64_at(B, o + 1).astype(np.int64) - 22
                 logt = _u64_at(B, o + 15)
-                msgtype, fld = wanted[topic]
-                sink = sinks[topic]
+                msgtype, outs = wanted[topic]
                 pos = o + (ordinal << 32)
+                for key, fld in outs:
+                    sink = sinks[key]
 
-                def emit(rows, stamps, names, values, sink=sink, logt=logt, pos=pos):
-                    sink.add_group(src, logt[rows], pos[rows], stamps, names, values)
-                try:
-                    decode_rows(B, o + 31, L, msgtype, fld, emit, _rosbags_deserializer(msgtype, fld))
-                except CdrError as e:
-                    raise _Damaged(f"message on {topic} at log time {int(logt[e.row])} ns: {e}") from None
+                    def emit(rows, stamps, names, values, sink=sink, logt=logt, pos=pos):
+                        sink.add_group(src, logt[rows], pos[rows], stamps, names, values)
+                    try:
+                        decode_rows(B, o + 31, L, msgtype, fld, emit, _rosbags_deserializer(msgtype, fld))
+                    except CdrError as e:
+                        raise _Damaged(f"message on {topic} at log time {int(logt[e.row])} ns: {e}") from None
+
+
+#: Storage plugin of a bare storage file (read without metadata.yaml, as ``ros2 bag`` does).
+BARE_STORAGE = {".mcap": "mcap", ".db3": "sqlite3"}
+#: The rosbag2 metadata versions this reader handles (rosbags' DirectoryReader: 1-9).
+METADATA_VERSIONS = (1, 9)
 
 
 def _storage_files(path):
     """Storage plugin and storage files of a bag from its ``metadata.yaml``.
 
-    Raises :class:`ReachsetError` naming ``metadata.yaml`` when it is not readable text,
-    not YAML, or lacks the storage entries; rosbags checks the rest.
+    A bare ``.mcap`` or ``.db3`` file is its own single storage file. Raises
+    :class:`ReachsetError` naming ``metadata.yaml`` when it is not readable text, not YAML,
+    of an unsupported version, or lacks the storage entries; rosbags checks the rest.
     """
+    if path.is_file():
+        if path.suffix not in BARE_STORAGE:
+            raise ReachsetError(f"{path}: not a rosbag2 bag (a directory with metadata.yaml, "
+                                "or a .mcap or .db3 file)")
+        return BARE_STORAGE[path.suffix], [path]
+
     def bad(why):
         return ReachsetError(f"{path}: unreadable bag (metadata.yaml: {why})")
     try:
@@ -218,6 +233,12 @@ def _storage_files(path):
     info = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
     if not isinstance(info, dict):
         raise bad("no rosbag2_bagfile_information mapping")
+    ver = info.get("version")
+    lo, hi = METADATA_VERSIONS
+    if not isinstance(ver, int) or isinstance(ver, bool) or not lo <= ver <= hi:
+        raise ReachsetError(f"{path}: rosbag2 metadata version {ver!r} is not supported "
+                            f"(this reader handles versions {lo}-{hi}); convert the bag with a "
+                            "newer `ros2 bag convert` or report it")
     storage, rel = info.get("storage_identifier"), info.get("relative_file_paths")
     if not isinstance(storage, str):
         raise bad("no storage_identifier")

@@ -30,7 +30,7 @@ from rosbags.rosbag2 import Reader
 
 from ..errors import ReachsetError
 from .cdr import FAST_TYPES, CdrError, _rosbags_deserializer, decode_rows
-from .mcap import _Damaged, _Fallback, _preflight, _read_mcap_file, _storage_files
+from .mcap import BARE_STORAGE, _Damaged, _Fallback, _preflight, _read_mcap_file, _storage_files
 from .messages import JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE, header_stamp_ns, typestore
 
 
@@ -78,6 +78,10 @@ class ReadReport:
     #: per topic: messages whose joint-name list (names and order) differs from the first
     #: message's (joints reordered, added or left out); paired by name, so only reported
     name_list_changes: dict = field(default_factory=dict)
+    #: the measured sampling period [s] of each bag, in order (median stamp step)
+    period_s: object = None
+    #: where u_p came from: "topic", or the effort source's description
+    input: object = "topic"
 
     def as_dict(self):
         return {k: v for k, v in self.__dict__.items()}
@@ -125,10 +129,14 @@ class _TopicColumns:
 
 
 def _check_bag_path(path: Path):
+    """A bag is a rosbag2 directory (with metadata.yaml) or, as ``ros2 bag`` accepts it, a
+    bare ``.mcap`` / ``.db3`` storage file."""
     if not path.exists():
         raise ReachsetError(f"{path}: no such bag")
+    if path.is_file() and path.suffix in BARE_STORAGE:
+        return
     if not path.is_dir():
-        raise ReachsetError(f"{path}: not a rosbag2 directory")
+        raise ReachsetError(f"{path}: not a rosbag2 bag (a directory with metadata.yaml, or a .mcap or .db3 file)")
     if not (path / "metadata.yaml").is_file():
         raise ReachsetError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
 
@@ -155,15 +163,31 @@ class _Sink:
     arrival order, which is the order rosbags yields the messages in.
     """
 
-    def __init__(self):
+    def __init__(self, unnamed=None):
         self.groups = []      # (src (N,), t (N,) uint64, pos (N,), stamps (N,), names, values (N, k))
         self.rows = {}        # single messages: names -> [src, t, pos, stamps, values(flat)]
+        #: joint names given to messages with an empty ``name`` array (``--joint-names``)
+        self.unnamed = None if unnamed is None else tuple(unnamed)
+        #: messages with values but no joint names (when ``unnamed`` is None): refused later
+        self.unnamed_messages = 0
+
+    def _names(self, names, k, n):
+        """The names of a message group: its own, or ``unnamed`` when it has none."""
+        if len(names) or not k:
+            return tuple(names)
+        if self.unnamed is None:
+            self.unnamed_messages += n
+            return ()
+        if len(self.unnamed) != k:
+            raise ReachsetError(f"messages without joint names have {k} values; --joint-names gives "
+                                f"{len(self.unnamed)} names")
+        return self.unnamed
 
     def mark(self):
-        return len(self.groups), {k: [len(a) for a in v] for k, v in self.rows.items()}
+        return len(self.groups), {k: [len(a) for a in v] for k, v in self.rows.items()}, self.unnamed_messages
 
     def rollback(self, mark):
-        n, rows = mark
+        n, rows, self.unnamed_messages = mark
         del self.groups[n:]
         for k in list(self.rows):
             if k not in rows:
@@ -174,10 +198,13 @@ class _Sink:
 
     def add_group(self, src, t, pos, stamps, names, values):
         n = len(stamps)
+        values = np.asarray(values, np.float64)
+        names = self._names(names, values.shape[1] if values.ndim == 2 else 0, n)
         self.groups.append((np.full(n, src, np.int64), np.asarray(t, np.uint64), np.asarray(pos, np.int64),
                             np.asarray(stamps, np.int64), tuple(names), np.asarray(values, np.float64)))
 
     def add_row(self, src, t, pos, stamp, names, values):
+        names = self._names(names, len(values), 1)
         k = min(len(names), len(values))
         key = (tuple(names), k)
         acc = self.rows.get(key)
@@ -278,30 +305,33 @@ _METADATA_ERRORS = ("A metadata key is missing", "Invalid bag metadata", "Could 
 
 # ------------------------------------------------------------------ rosbags (sqlite3 and the rest)
 def _read_rosbags(reader, src, wanted, sinks, batch=8192):
-    """Read the wanted topics through rosbags; known types are decoded in vectorised batches."""
+    """Read the wanted topics through rosbags; known types are decoded in vectorised batches.
+
+    ``wanted``: topic -> (msgtype, [(key, field), ...]); each field goes to ``sinks[key]``."""
     ts = typestore()
     conns = [c for c in reader.connections if c.topic in wanted]
     pend = {}     # topic -> (payloads, seqs)
 
     def flush(topic):
         payloads, seqs = pend.pop(topic)
-        msgtype, fld = wanted[topic]
+        msgtype, outs = wanted[topic]
         lengths = np.fromiter((len(p) for p in payloads), np.int64, len(payloads))
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
         buf = np.frombuffer(b"".join(payloads), dtype=np.uint8)
         seqs = np.frombuffer(seqs, np.int64)
-        sink = sinks[topic]
+        for key, fld in outs:
+            sink = sinks[key]
 
-        def emit(rows, stamps, names, values):
-            sink.add_group(src, seqs[rows].astype(np.uint64), np.zeros(len(rows), np.int64), stamps, names, values)
-        try:
-            decode_rows(buf, starts, lengths, msgtype, fld, emit, _rosbags_deserializer(msgtype, fld))
-        except CdrError as e:
-            raise ReachsetError(f"unreadable message on {topic} (message {int(seqs[e.row])} of the bag): {e}") from None
+            def emit(rows, stamps, names, values, sink=sink):
+                sink.add_group(src, seqs[rows].astype(np.uint64), np.zeros(len(rows), np.int64), stamps, names, values)
+            try:
+                decode_rows(buf, starts, lengths, msgtype, fld, emit, _rosbags_deserializer(msgtype, fld))
+            except CdrError as e:
+                raise ReachsetError(f"unreadable message on {topic} (message {int(seqs[e.row])} of the bag): {e}") from None
 
     for seq, (conn, _t, raw) in enumerate(reader.messages(connections=conns)):
         topic = conn.topic
-        msgtype, fld = wanted[topic]
+        msgtype, outs = wanted[topic]
         if not isinstance(raw, (bytes, bytearray, memoryview)):   # e.g. NULL in a damaged sqlite3 row
             raise ReachsetError(f"unreadable message on {topic} (message {seq} of the bag): no data")
         if conn.msgtype == msgtype and msgtype in FAST_TYPES:
@@ -314,12 +344,13 @@ def _read_rosbags(reader, src, wanted, sinks, batch=8192):
                 flush(topic)
         else:
             msg = ts.deserialize_cdr(raw, conn.msgtype)
-            sinks[topic].add_row(src, seq, 0, header_stamp_ns(msg), list(msg.name), getattr(msg, fld))
+            for key, fld in outs:
+                sinks[key].add_row(src, seq, 0, header_stamp_ns(msg), list(msg.name), getattr(msg, fld))
     for topic in list(pend):
         flush(topic)
 
 
-def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
+def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None, joint_names=None):
     """Stream ``topics`` of the bags into per-joint columns.
 
     MCAP bags are read chunk by chunk (the mcap library for the file structure, a
@@ -330,11 +361,37 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
 
     The array read from each topic is chosen by its message type (``VALUE_FIELDS``), not
     by its name; ``expect`` (``{topic: msgtype}``) refuses a topic of another type.
+    ``joint_names``: the names of messages whose ``name`` array is empty (without it such
+    messages are refused, not dropped).
 
     Returns ``{topic: _TopicColumns}``. Raises :class:`ReachsetError` naming the bag (and
     the damaged file) for unreadable bags and the topic when one is missing.
     """
-    sinks = {t: _Sink() for t in topics}
+    return read_fields(paths, {t: (t, None) for t in topics}, expect, joint_names)
+
+
+def read_fields(paths, requests, expect=None, joint_names=None):
+    """Several float arrays of several topics in one pass: the engine of :func:`read_topics`.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        Bags (directories, or bare ``.mcap`` / ``.db3`` files).
+    requests : dict key -> (topic, field or None)
+        What to read: the array ``field`` of ``topic``'s messages (``None``: the type's
+        value field, ``VALUE_FIELDS``), e.g. ``{"q": ("/joint_states", "position"),
+        "tau": ("/joint_states", "effort")}``.
+    expect : dict topic -> msgtype, optional
+        Refuse a topic of another type.
+    joint_names : sequence of str, optional
+        Names for messages with an empty ``name`` array.
+
+    Returns
+    -------
+    dict key -> _TopicColumns
+    """
+    topics = list(dict.fromkeys(t for t, _ in requests.values()))
+    sinks = {k: _Sink(joint_names) for k in requests}
     src = 0
     for p in paths:
         path = Path(p)
@@ -356,12 +413,16 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
                 for t, want in (expect or {}).items():
                     if types.get(t) != want:
                         raise ReachsetError(f"{path}: topic {t} has type {types.get(t)}; expected {want}")
-                wanted = {t: (types[t], _value_field(t, types[t])) for t in topics}
-                marks = {t: s.mark() for t, s in sinks.items()}
+                wanted = {}
+                for key, (t, fld) in requests.items():
+                    fld = _value_field(t, types[t]) if fld is None else fld
+                    wanted.setdefault(t, (types[t], []))[1].append((key, fld))
+                marks = {k: s.mark() for k, s in sinks.items()}
                 try:
                     storage, files = _storage_files(path)
                     if storage != "mcap" or reader.compression_mode or any(
-                            mt not in FAST_TYPES or fld not in FAST_TYPES[mt] for mt, fld in wanted.values()):
+                            mt not in FAST_TYPES or fld not in FAST_TYPES[mt]
+                            for mt, outs in wanted.values() for _, fld in outs):
                         raise _Fallback(storage)
                     for fpath in files:
                         try:
@@ -370,11 +431,16 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
                             raise ReachsetError(f"{path}: unreadable bag ({fpath.name}: {e})") from None
                         src += 1
                 except _Fallback:
-                    for t, s in sinks.items():
-                        s.rollback(marks[t])
+                    for k, s in sinks.items():
+                        s.rollback(marks[k])
                     src += 1
                     _read_rosbags(reader, src, wanted, sinks)
                     src += 1
+                for key, s in sinks.items():
+                    if s.unnamed_messages:
+                        raise ReachsetError(f"{path}: {s.unnamed_messages} messages on {requests[key][0]} have "
+                                            "no joint names; pass --joint-names a,b,... (the names of their "
+                                            "arrays, in order)")
         except ReachsetError as e:
             msg = str(e)
             raise ReachsetError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
@@ -387,8 +453,8 @@ def read_topics(paths, topics=(JOINT_STATES, PLANT_INPUT), expect=None):
             raise ReachsetError(f"{path}: unreadable bag ({where}: {type(e).__name__}"
                                 + (f": {first})" if first else ")")) from e
     out = {}
-    for t, s in sinks.items():
-        out[t] = s.columns()
+    for k, s in sinks.items():
+        out[k] = s.columns()
         s.groups.clear()            # free the decoded groups before the next topic's columns
         s.rows.clear()
     return out
@@ -434,7 +500,32 @@ def segments_of(stamps, valid, dt):
     return tuple(zip(starts.tolist(), stops.tolist()))
 
 
-def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_INPUT)):
+#: A bag whose measured sampling period (median stamp step) differs from dt by more than this
+#: share of dt is refused: its test cases would not be the model's (k steps of dt).
+PERIOD_TOLERANCE = 0.1
+
+
+def measured_period(stamps):
+    """The sampling period of sorted unique stamps [s]: the median positive step (pauses
+    between recordings and single lost ticks do not move it); None with fewer than 2 stamps."""
+    st = np.asarray(stamps, np.int64)
+    if len(st) < 2:
+        return None
+    return float(np.median(np.diff(st))) * 1e-9
+
+
+def check_period(path, topic, stamps, dt):
+    """Refuse a stream whose :func:`measured_period` is not ``dt`` (within :data:`PERIOD_TOLERANCE`)."""
+    per = measured_period(stamps)
+    if per is not None and abs(per - dt) > PERIOD_TOLERANCE * dt:
+        raise ReachsetError(f"{path}: the measured sampling period of {topic} is {per * 1e3:.4g} ms "
+                            f"(median stamp step), not dt = {dt * 1e3:.4g} ms (--dt, or the model's dt); "
+                            "use data recorded at dt or a model identified for this period")
+    return per
+
+
+def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_INPUT), effort=None,
+                      joint_names=None):
     """Per-joint paired (y, u_p) series from rosbag2 bags (MCAP or sqlite3).
 
     Each bag is read on its own and the bags' series are concatenated; a test case never
@@ -457,13 +548,29 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
         The measurement topic (sensor_msgs/msg/JointState, its ``position`` is y_p) and the
         plant-input topic (reachset_msgs/msg/PlantInput); default ``/joint_states``,
         ``/plant_input`` (the CLI's ``--joint-states-topic``, ``--input-topic``).
+    effort : EffortInput, optional
+        ``--input effort``: u_p is computed from the measurement topic's position, velocity
+        and effort with the nominal model (:func:`reachset_ros.robot.effort.plant_inputs`,
+        eq. 6 inverted) at every stamp where all of the model's joints have all three;
+        the plant-input topic is not read.
+    joint_names : sequence of str, optional
+        Names for JointState messages with an empty ``name`` array (``--joint-names``).
+
+    The sampling period is measured from the stamps (:func:`measured_period`) and a bag
+    whose period is not ``dt`` is refused (:func:`check_period`); the report has it as
+    ``period_s``.
 
     Returns
     -------
     series : dict name -> JointSeries
     report : ReadReport
     """
-    parts = [_read_one(p, joints, dt, tuple(topics)) for p in paths]
+    if effort is not None:
+        parts = [_read_one_effort(p, joints, dt, topics[0], effort, joint_names) for p in paths]
+    else:
+        parts = [_read_one(p, joints, dt, tuple(topics), joint_names) for p in paths]
+    for _, r in parts:
+        r.period_s = [r.period_s]
     if len(parts) == 1:
         return parts[0]
     names = list(parts[0][0])
@@ -485,6 +592,8 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
             a.setflags(write=False)
         out[n] = JointSeries(n, *arrs, tuple(segs), dt)
     rep = ReadReport()
+    rep.input = parts[0][1].input
+    rep.period_s = [v for _, r in parts for v in r.period_s]
     for _, r in parts:
         for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps",
                     "name_list_changes"):
@@ -495,12 +604,13 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
     return out, rep
 
 
-def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT)):
+def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT), joint_names=None):
     paths = [path]
     y_topic, u_topic = topics
     if y_topic == u_topic:
         raise ReachsetError(f"the measurement and the plant-input topic are both {y_topic}")
-    cols = read_topics(paths, topics, expect={y_topic: JOINT_STATE_TYPE, u_topic: PLANT_INPUT_TYPE})
+    cols = read_topics(paths, topics, expect={y_topic: JOINT_STATE_TYPE, u_topic: PLANT_INPUT_TYPE},
+                       joint_names=joint_names)
     js, pi = cols[y_topic], cols[u_topic]
     rep = ReadReport()
     rep.messages = {y_topic: js.count, u_topic: pi.count}
@@ -521,6 +631,8 @@ def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT)):
         ys, yv, ydup = _unique_sorted(np.frombuffer(js.stamps[name], np.int64), np.frombuffer(js.values[name]))
         us, uv, udup = _unique_sorted(np.frombuffer(pi.stamps[name], np.int64), np.frombuffer(pi.values[name]))
         stamps, iy, iu = _pair(ys, us)
+        if i == 0:
+            rep.period_s = check_period(path, y_topic, stamps, dt)
         y, u = yv[iy].copy(), uv[iu].copy()
         if name not in joints[i + 1:]:      # free this joint's columns (peak memory)
             for c in (js, pi):
@@ -532,6 +644,63 @@ def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT)):
         out[name] = JointSeries(name, stamps, y, u, segs, dt)
         rep.duplicates[name] = ydup + udup
         rep.unpaired[name] = int(len(ys) + len(us) - 2 * len(stamps))
+        rep.invalid_samples[name] = int((~valid).sum())
+        rep.gaps[name] = max(0, len(segs) - 1)
+    return out, rep
+
+
+def _read_one_effort(path, joints, dt, y_topic, effort, joint_names=None):
+    """:func:`_read_one` for ``--input effort``: u_p from position, velocity and effort."""
+    robot = list(effort.joint_names)
+    req = {f: (y_topic, f) for f in ("position", "velocity", "effort")}
+    cols = read_fields([path], req, expect={y_topic: JOINT_STATE_TYPE}, joint_names=joint_names)
+    pos = cols["position"]
+    rep = ReadReport()
+    rep.input = effort.describe()
+    rep.messages = {y_topic: pos.count}
+    rep.out_of_order = {y_topic: pos.out_of_order}
+    rep.name_list_changes = {y_topic: pos.name_changes}
+    rep.ignored_joints = sorted(set(pos.order) - set(robot))
+    for nm in robot:
+        for f, c in cols.items():
+            if nm not in c.stamps:
+                raise ReachsetError(f"{path}: joint {nm} of the robot model has no {f} on {y_topic} "
+                                    "(--input effort needs position, velocity and effort of every joint "
+                                    "of the model; --robot with fewer joints, or --input topic)")
+    if joints is None or list(joints) == ["all"]:
+        joints = robot
+    for nm in joints:
+        if nm not in robot:
+            raise ReachsetError(f"joint {nm} is not a joint of the robot model {effort.urdf}")
+    data, dups, common = {}, {}, None
+    for f, c in cols.items():
+        for nm in robot:
+            st, v, d = _unique_sorted(np.frombuffer(c.stamps[nm], np.int64), np.frombuffer(c.values[nm]))
+            data[f, nm] = (st, v)
+            dups[nm] = dups.get(nm, 0) + d
+            common = st if common is None else np.intersect1d(common, st, assume_unique=True)
+    n_pos = {nm: len(data["position", nm][0]) for nm in robot}
+    rep.period_s = check_period(path, y_topic, common, dt)
+    mats = {}
+    for f in cols:
+        m = np.empty((len(common), len(robot)))
+        for j, nm in enumerate(robot):
+            st, v = data[f, nm]
+            m[:, j] = v[np.searchsorted(st, common)]
+        mats[f] = m
+    U = effort.plant_inputs(mats["position"], mats["velocity"], mats["effort"])
+    out = {}
+    for name in joints:
+        j = robot.index(name)
+        stamps = common.copy()
+        y, u = mats["position"][:, j].copy(), U[:, j].copy()
+        valid = np.isfinite(y) & np.isfinite(u)
+        segs = segments_of(stamps, valid, dt)
+        for a in (stamps, y, u):
+            a.setflags(write=False)
+        out[name] = JointSeries(name, stamps, y, u, segs, dt)
+        rep.duplicates[name] = dups[name]
+        rep.unpaired[name] = int(n_pos[name] - len(stamps))
         rep.invalid_samples[name] = int((~valid).sum())
         rep.gaps[name] = max(0, len(segs) - 1)
     return out, rep

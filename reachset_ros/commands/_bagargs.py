@@ -8,19 +8,48 @@ from ..errors import ReachsetError
 
 
 def add_bag_arguments(p, joints=True):
-    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 directories (MCAP or sqlite3)")
+    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 directories (MCAP or sqlite3), or bare .mcap / .db3 files")
     if joints:
         p.add_argument("--joints", default="all", help="comma-separated joint names, or 'all' (default)")
     p.add_argument("--joint-states-topic", default=JOINT_STATES, metavar="T",
                    help=f"the measurement topic, sensor_msgs/msg/JointState: its position is y_p (default {JOINT_STATES})")
     p.add_argument("--input-topic", default=PLANT_INPUT, metavar="T",
                    help=f"the plant-input topic, reachset_msgs/msg/PlantInput (default {PLANT_INPUT})")
+    p.add_argument("--input", choices=["topic", "effort"], default="topic",
+                   help="where u_p comes from: the plant-input topic (default), or the measurement topic's "
+                        "effort with the robot's URDF: u_p = M^-1(q) (tau - psi(q, qd)) (needs --robot)")
+    p.add_argument("--robot", metavar="URDF", help="--input effort: the robot's URDF (the nominal model M, psi)")
+    p.add_argument("--nominal", metavar="PARAMS.yaml",
+                   help="--input effort: identified parameters applied over the URDF (e.g. config/lwa4p_nominal.yaml)")
+    p.add_argument("--joint-names", metavar="a,b,...",
+                   help="names of the arrays of JointState messages whose name[] is empty (otherwise refused)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
 def topics_of(args):
     """(measurement topic, plant-input topic) of the command line."""
     return (getattr(args, "joint_states_topic", JOINT_STATES), getattr(args, "input_topic", PLANT_INPUT))
+
+
+def reader_options(args):
+    """``read_joint_series`` keyword arguments of the command line: ``effort`` (an
+    :class:`~reachset_ros.robot.effort.EffortInput` for ``--input effort``) and ``joint_names``."""
+    mode = getattr(args, "input", "topic")
+    robot, nominal = getattr(args, "robot", None), getattr(args, "nominal", None)
+    effort = None
+    if mode == "effort":
+        if robot is None:
+            raise ReachsetError("--input effort needs --robot URDF")
+        from ..robot.effort import load_effort_input   # Pinocchio: only when asked for
+        effort = load_effort_input(robot, nominal)
+    elif robot is not None or nominal is not None:
+        raise ReachsetError("--robot and --nominal are only used with --input effort")
+    names = getattr(args, "joint_names", None)
+    if names is not None:
+        names = [j.strip() for j in str(names).split(",") if j.strip()]
+        if not names or len(set(names)) != len(names):
+            raise ReachsetError("--joint-names: give distinct, non-empty joint names, e.g. a,b,c")
+    return {"effort": effort, "joint_names": names}
 
 
 def parse_joints(text):
@@ -30,17 +59,18 @@ def parse_joints(text):
     return None if names == ["all"] else names
 
 
-def load_series(bags, joints, dt=0.004, restrict=None, topics=(JOINT_STATES, PLANT_INPUT)):
+def load_series(bags, joints, dt=0.004, restrict=None, topics=(JOINT_STATES, PLANT_INPUT), options=None):
     """Per-joint series from the bags; ``restrict`` limits 'all' to the model's joints;
-    ``topics``: (measurement topic, plant-input topic)."""
+    ``topics``: (measurement topic, plant-input topic); ``options``: :func:`reader_options`."""
     names = parse_joints(joints) if isinstance(joints, str) else joints
+    opts = options or {}
     if names is None and restrict is not None:
-        series, report = read_joint_series(bags, None, dt, topics)
+        series, report = read_joint_series([Path(b) for b in bags], None, dt, topics, **opts)
         missing = [j for j in restrict if j not in series]
         if missing:
             raise ReachsetError(f"joint {missing[0]} of the model not found in the bags")
         return {j: series[j] for j in restrict}, report
-    return read_joint_series([Path(b) for b in bags], names, dt, topics)
+    return read_joint_series([Path(b) for b in bags], names, dt, topics, **opts)
 
 
 def check_out_path(out):

@@ -6,7 +6,7 @@ from ..conformance.theorem1 import Theorem1, check, deviation_extremes
 from ..errors import ReachsetError
 from ..plots import plot_deviations
 from . import emit
-from ._bagargs import add_bag_arguments, load_series, require_horizon, topics_of
+from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
 
 NAME = "check"
 HELP = "check bags for reachset conformance against a model (batch, vectorised)"
@@ -29,7 +29,7 @@ def joint_result(stamps, res):
 def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                 topics=topics_of(args))
+                                 topics=topics_of(args), options=reader_options(args))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
     thm = Theorem1.build(model.plant, model.horizon)
     joints = {}

@@ -40,7 +40,8 @@ from ..conformance.validation import detection_delay, validation_grid
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
 from . import emit
-from ._bagargs import add_bag_arguments, check_out_path, load_series, require_horizon, topics_of
+from ._bagargs import (add_bag_arguments, check_out_path, load_series, reader_options, require_horizon,
+                       topics_of)
 
 NAME = "identify"
 HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
@@ -173,11 +174,13 @@ def run(args):
     grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
     est = Estimator.named(args.estimator, lwa4p_joint_plant(dt=args.dt))
-    series, report = load_series(args.bags, args.joints, args.dt, topics=topics_of(args))
+    opts = reader_options(args)
+    series, report = load_series(args.bags, args.joints, args.dt, topics=topics_of(args), options=opts)
     require_horizon(series, est.history, args.horizon, args.bags)
     vseries = vreport = None
     if args.validate:
-        vseries, vreport = load_series(args.validate, list(series), args.dt, topics=topics_of(args))
+        vseries, vreport = load_series(args.validate, list(series), args.dt, topics=topics_of(args),
+                                       options=opts)
         require_horizon(vseries, est.history, args.horizon, args.validate)
     results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower,
                                    cost=args.cost, method=args.method)
@@ -204,6 +207,7 @@ def run(args):
         result["validation_data"] = vreport.as_dict()
     if out is not None:
         prov = mdl.provenance(args.bags, "reachset " + " ".join(sys.argv[1:]))
+        prov["input"] = report.input
         if args.validate:
             prov["validation"] = {"bags": mdl.provenance(args.validate, "")["bags"],
                                   "inflation_grid": grid, "fault_accel": args.fault_accel}

@@ -17,7 +17,7 @@ from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
 from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
 from . import emit
-from ._bagargs import add_bag_arguments, load_series, require_horizon, topics_of
+from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
 
 NAME = "replay"
 HELP = "replay bags through the online monitor core tick by tick (same verdicts as check)"
@@ -92,7 +92,7 @@ def replay_joints(model, series, thm=None):
 def run(args):
     model = mdl.load(args.model)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                 topics=topics_of(args))
+                                 topics=topics_of(args), options=reader_options(args))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
     thm = Theorem1.build(model.plant, model.horizon)
     missing = [n for n in series if n not in model.joints]

@@ -28,7 +28,7 @@ from ..synthesis.config import PARAMS
 from ..synthesis.pipeline import synthesize_bags
 from ..synthesis.reference_error import ReferenceClass, ReferenceMethod
 from . import emit
-from ._bagargs import add_bag_arguments, check_out_path, parse_joints, topics_of
+from ._bagargs import add_bag_arguments, check_out_path, parse_joints, reader_options, topics_of
 
 NAME = "synthesize"
 HELP = "combined controller synthesis and reachset-conformant identification (paper eq. 10)"
@@ -176,7 +176,8 @@ def run(args):
                          allow_weak_horizon=args.allow_weak_horizon,
                          reference_class=(None if args.reference_class is None
                                           else ReferenceClass.parse(args.reference_class)),
-                         inflation=args.inflation, topics=topics_of(args))
+                         inflation=args.inflation, topics=topics_of(args),
+                         reader=reader_options(args))
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []

@@ -27,8 +27,9 @@ from scipy.signal import butter, filtfilt
 from ..atomic import write_yaml
 from ..bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
 from ..errors import ReachsetError
-from .dynamics import (RobotModel, create_data, inverse_fl, load_model, logged_to_torque,
+from .dynamics import (RobotModel, create_data, load_model,
                        min_mass_eigenvalue, model_params_dict)
+from .effort import plant_inputs as effort_plant_inputs
 from .inertial_id import BaseParameters, Identification, identify_inertial, predict_logged, torque_gram
 
 DT = 0.004
@@ -328,11 +329,11 @@ def run_start_stamps(runs, start_ns: int = DEFAULT_START_NS, gap_ns: int = DEFAU
 
 def plant_inputs(model: RobotModel, run: Run, data=None) -> np.ndarray:
     """``u_p[k] = M_hat(q_k)^-1 (s * tau_k - psi_hat(q_k, qd_k))`` for k < N-1 (paper eq. 6
-    inverted, with the measured q, qd of tick k, as the controller computes it)."""
-    data = data or create_data(model)
-    tau = logged_to_torque(model, run.tau)
-    return np.stack([inverse_fl(model, data, run.q[k], run.qd[k], tau[k])
-                     for k in range(len(tau))])
+    inverted, with the measured q, qd of tick k, as the controller computes it): the one
+    implementation :func:`reachset_ros.robot.effort.plant_inputs`, which ``--input effort``
+    uses on any arm's ``/joint_states``."""
+    m = len(run.tau)
+    return effort_plant_inputs(model, run.q[:m], run.qd[:m], run.tau, data)
 
 
 def import_runs(root, runs, out, model: RobotModel | None = None,

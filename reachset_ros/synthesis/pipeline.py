@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import conformance as cf
 from ..bags import read_joint_series
-from ..bags.messages import REFERENCE_TOPIC
+from ..bags.messages import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC
 from ..bags.references import read_references
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
@@ -140,7 +140,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                     bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
-                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None):
+                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None,
+                    reader=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -165,6 +166,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         references (reidentify: or a class recorded in the model); otherwise refused.
     topics : (str, str), optional
         Measurement and plant-input topics (default ``/joint_states``, ``/plant_input``).
+    reader : dict, optional
+        More :func:`reachset_ros.bags.read_joint_series` options (``effort``, ``joint_names``).
     inflation : float, optional
         The monitor checks the sets scaled by ``1 + inflation``; R*_u inside U_p is enforced
         and R*_e reported for those sets, and the model records it. Default 0 (reidentify: the
@@ -209,8 +212,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     if not (math.isfinite(inflation) and inflation >= 0):
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
-    series, report = (read_joint_series(list(bags), names, plant.dt, tuple(topics)) if topics
-                      else read_joint_series(list(bags), names, plant.dt))
+    series, report = read_joint_series(list(bags), names, plant.dt, tuple(topics) if topics else
+                                       (JOINT_STATES, PLANT_INPUT), **(reader or {}))
     names = list(series)
     cf.require_horizon(series, est.history, horizon, bags)
     if mode == "reidentify":

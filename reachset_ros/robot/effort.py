@@ -1,0 +1,112 @@
+"""Plant input of a measured joint effort: ``u_p = M̂(q)⁻¹ (s τ − ψ̂(q, q̇))``, eq. (6) inverted.
+
+Pure core (no ROS). An arm that is driven by another controller (a ros2_control effort
+controller, a vendor's torque loop) publishes ``/joint_states`` with position, velocity and
+effort, and has a URDF. Its plant input in the sense of the paper (the acceleration the
+feedback linearization of eqs. (5)-(7) would have asked for) is recovered from the
+measured torque with the nominal model, ``u_p = M̂(q)⁻¹ (τ − ψ̂(q, q̇))``, exactly as
+``reachset import-lwa4p`` does for the Schunk LWA-4P recordings: :func:`plant_inputs` is the
+one implementation both use, and the monitor node's ``input_source: effort`` calls it too.
+
+Choices (documented in docs/real-data.md, "Any arm"):
+
+* no filter and no lag: the effort of the JointState message stamped t_k is paired with the
+  position and velocity of the same message, and the result is the plant input of tick k
+  (the convention of the LWA-4P recordings, where the logged torque of row k is the command
+  issued at sample k; the plant's one-sample input and output delays of Appendix A are in
+  the identified model, not in this map);
+* ``τ = torque_scale · effort`` (1 unless an identified parameter document says otherwise:
+  the LWA-4P logs torque in drive units);
+* a row with a non-finite position, velocity or effort gives a NaN plant input for every
+  joint (M̂⁻¹ couples the joints), so those ticks are invalid samples, never silently used.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ReachsetError
+from .dynamics import RobotModel, create_data, inverse_fl, load_model
+
+__all__ = ["EffortInput", "plant_inputs", "load_effort_input"]
+
+
+def plant_inputs(model: RobotModel, Q, QD, TAU, data=None) -> np.ndarray:
+    """Plant inputs of measured efforts, one row per sample (eq. 6 inverted).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal model M̂, ψ̂ (and the torque scale).
+    Q, QD : array_like, shape (T, n)
+        Measured joint positions [rad] and velocities [rad/s], columns in the model's joint order.
+    TAU : array_like, shape (T, n)
+        Measured (or commanded) effort, as logged: ``torque_scale * TAU`` is N m.
+    data : pin.Data, optional
+        Workspace (:func:`~reachset_ros.robot.dynamics.create_data`).
+
+    Returns
+    -------
+    ndarray, shape (T, n)
+        ``u_p[k] = M̂(q_k)⁻¹ (s τ_k − ψ̂(q_k, q̇_k))`` [rad/s²]; NaN rows where an input is
+        not finite.
+    """
+    Q, QD, TAU = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (Q, QD, TAU))
+    n = model.nv
+    if not (Q.shape == QD.shape == TAU.shape and Q.shape[1] == n):
+        raise ReachsetError(f"plant_inputs: q, qd, effort must be (T, {n}); got {Q.shape}, {QD.shape}, {TAU.shape}")
+    data = data if data is not None else create_data(model)
+    tau = model.torque_scale * TAU
+    out = np.full(Q.shape, np.nan)
+    ok = np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1) & np.isfinite(tau).all(axis=1)
+    for k in np.flatnonzero(ok):
+        out[k] = inverse_fl(model, data, Q[k], QD[k], tau[k])
+    return out
+
+
+@dataclass(frozen=True)
+class EffortInput:
+    """The plant-input source ``--input effort``: a nominal model and where it came from.
+
+    Attributes
+    ----------
+    model : RobotModel
+        Nominal model (URDF, optionally with identified parameters applied).
+    urdf : str
+        The URDF path.
+    nominal : str or None
+        The parameter document applied over the URDF (``--nominal``), if any.
+    """
+
+    model: RobotModel
+    urdf: str
+    nominal: str | None = None
+
+    @property
+    def joint_names(self) -> tuple:
+        return self.model.joint_names
+
+    def plant_inputs(self, Q, QD, TAU, data=None) -> np.ndarray:
+        """:func:`plant_inputs` with this source's model."""
+        return plant_inputs(self.model, Q, QD, TAU, data)
+
+    def describe(self) -> dict:
+        """Provenance: ``{"source": "effort", "robot": urdf, "nominal": params or None, "joints": [...]}``."""
+        return {"source": "effort", "robot": self.urdf, "nominal": self.nominal,
+                "joints": list(self.joint_names)}
+
+
+def load_effort_input(urdf, nominal=None, joints=None) -> EffortInput:
+    """An :class:`EffortInput` from a URDF and an optional parameter document.
+
+    ``joints``: keep only these joints of the URDF (the others locked at their neutral
+    configuration), when :func:`~reachset_ros.robot.dynamics.load_model` supports it.
+    """
+    if urdf is None:
+        raise ReachsetError("--input effort needs --robot URDF")
+    urdf = Path(urdf).resolve()
+    kw = {} if joints is None else {"joints": list(joints)}
+    model = load_model(urdf, nominal, **kw)
+    return EffortInput(model, str(urdf), None if nominal is None else str(Path(nominal).resolve()))
