@@ -117,14 +117,16 @@ def test_decoder_groups_only_identical_layouts():
 
 
 # ------------------------------------------------------------------ bag reader == rosbags reader
-def reference_columns(path, topics=(bags.JOINT_STATES, bags.PLANT_INPUT)):
-    """The reader before the fast path: rosbags' AnyReader and deserialize_cdr, message by message."""
+def reference_columns(path, topics=(bags.JOINT_STATES, bags.PLANT_INPUT), field=None):
+    """The reader before the fast path: rosbags' AnyReader and deserialize_cdr, message by message
+    (``field``: read this array instead of the type's value field)."""
     cols = {t: bags.series._TopicColumns() for t in topics}
     with AnyReader([Path(path)], default_typestore=TS) as reader:
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = TS.deserialize_cdr(raw, conn.msgtype)
-            vals = msg.position if conn.msgtype == bags.JOINT_STATE_TYPE else msg.acceleration
+            vals = (getattr(msg, field) if field else
+                    msg.position if conn.msgtype == bags.JOINT_STATE_TYPE else msg.acceleration)
             cols[conn.topic].add(bags.header_stamp_ns(msg), msg.name, vals)
     return cols
 
@@ -160,8 +162,9 @@ def messy_stream(n=400, seed=1):
             q[0] = np.nan
         pos = q[:-1] if i % 11 == 0 else q      # fewer values than names
         recv = T0 + DT_NS * i + int(rng.integers(0, 3 * DT_NS))     # log times not monotonic
+        eff = rng.normal(size=len(names) - (i % 7 == 0)) if i % 3 else []   # effort: often, not always, filled
         out.append((recv, bags.JOINT_STATES, bags.JOINT_STATE_TYPE,
-                    bags.joint_state(stamp, names, pos, rng.normal(size=len(names)), [])))
+                    bags.joint_state(stamp, names, pos, rng.normal(size=len(names)), eff)))
         out.append((recv + 1000, bags.PLANT_INPUT, bags.PLANT_INPUT_TYPE,
                     bags.plant_input(stamp, names, rng.normal(size=len(names)))))
         if i % 5 == 0:
@@ -250,6 +253,34 @@ def test_reader_equals_rosbags_on_many_chunk_mcap(tmp_path, compression, index, 
     assert want[bags.JOINT_STATES].count == 400
     assert_columns_equal(bags.read_topics([tmp_path / "b"]), want)
     assert len(rosbags_reads) == (index == "NONE")
+
+
+@pytest.mark.parametrize("kind", ["mcap", "sqlite3", "mcap-zstd-chunks", "message-compressed", "mcap-lib-no-repeat",
+                                  "mcap-lib-unindexed"])
+def test_several_arrays_of_a_topic_in_one_pass_equal_rosbags(tmp_path, kind):
+    """Issue 15.3: ``--input effort`` reads position, velocity and effort of one JointState
+    topic in one pass (read_fields); each equals rosbags' message-by-message decoding, on
+    bags written by rosbags (both storages, both compression modes) and by the mcap library
+    (summary without channels; no index at all)."""
+    path = tmp_path / "b"
+    stream = messy_stream()
+    if kind == "mcap-zstd-chunks":
+        write_rosbags(path, stream, compression=CompressionMode.STORAGE)
+    elif kind == "message-compressed":
+        write_rosbags(path, stream, compression=CompressionMode.MESSAGE)
+    elif kind == "mcap-lib-no-repeat":
+        write_mcap_lib(path, stream, "ZSTD", "ALL", repeat=False)
+    elif kind == "mcap-lib-unindexed":
+        stream.sort(key=lambda s: s[0])
+        write_mcap_lib(path, stream, "NONE", "NONE")
+    else:
+        write_rosbags(path, stream, storage=kind)
+    fields = ("position", "velocity", "effort")
+    got = bags.series.read_fields([path], {f: (bags.JOINT_STATES, f) for f in fields})
+    for f in fields:
+        want = reference_columns(path, (bags.JOINT_STATES,), field=f)
+        assert_columns_equal({bags.JOINT_STATES: got[f]}, want)
+    assert sum(len(v) for v in got["effort"].values.values()) > 0      # effort was there to read
 
 
 def test_mcap_whose_summary_does_not_repeat_the_channels_is_read(tmp_path, rosbags_reads):
