@@ -202,3 +202,18 @@ def test_unsupported_metadata_version_says_so(tmp_path):
     (d / "metadata.yaml").write_text(yaml.safe_dump(meta))
     line = cli("identify", d, code=2)
     assert "metadata version 42 is not supported" in line and "1-9" in line
+
+
+def test_inspect_suggests_the_effort_command_and_it_works(lwa_bags):
+    """``reachset inspect --robot URDF`` on a bag with only /joint_states (position, velocity,
+    effort) prints the identify command with --input effort; that command runs."""
+    import shlex
+    d, _, _ = lwa_bags
+    res = cli("inspect", d / "plain", "--json")
+    assert res["identify"]["command"] is None and "--robot URDF" in res["identify"]["reason"]
+    assert res["topics"]["/joint_states"]["filled_share"]["effort"] > 0.99
+    res = cli("inspect", d / "plain", "--robot", DEFAULT_URDF, "--nominal", NOMINAL, "--json")
+    cmd = res["identify"]["command"]
+    assert "--input effort" in cmd and "--dt 0.004" in cmd, res
+    out = cli(*shlex.split(cmd)[1:], "--horizon", 20, "--json")
+    assert len(out["joints"]) == 6 and out["data"]["input"]["source"] == "effort"

@@ -5,6 +5,7 @@ PlantInput topics also from the header stamps: the sampling period (median stamp
 its jitter, the joint names, and which of position/velocity/effort are filled. Then the
 ``identify`` command that works on the bags, or why none can (issue 15, item 1).
 """
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,11 @@ FIELDS = {JOINT_STATE_TYPE: ("position", "velocity", "effort"), PLANT_INPUT_TYPE
 
 
 def add_arguments(p):
-    p.add_argument("bags", nargs="+", help="rosbag2 directories")
+    p.add_argument("bags", nargs="+", help="rosbag2 directories, or bare .mcap / .db3 files")
+    p.add_argument("--robot", metavar="URDF",
+                   help="the robot's URDF: the suggested command computes u_p from the effort with it when "
+                        "the bag has no plant-input topic (--input effort)")
+    p.add_argument("--nominal", metavar="PARAMS.yaml", help="with --robot: identified parameters over the URDF")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -50,7 +55,7 @@ def inspect_bags(paths):
             with Reader(path) as reader:
                 for c in reader.connections:
                     e = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0, "log": [], "stamps": [],
-                                                    "names": [], "filled": {}})
+                                                    "names": [], "filled": {}, "full": {}})
                     if e["type"] != c.msgtype:
                         raise ReachsetError(f"{path}: topic {c.topic} has type {c.msgtype} here, {e['type']} before")
                 for conn, t, raw in reader.messages():
@@ -65,7 +70,9 @@ def inspect_bags(paths):
                             e["names"].append(names)
                         for f in FIELDS[conn.msgtype]:
                             n = len(getattr(msg, f))
-                            e["filled"][f] = e["filled"].get(f, True) and n == len(names) and n > 0
+                            full = n > 0 and (n == len(names) or not names)
+                            e["filled"][f] = e["filled"].get(f, True) and full
+                            e["full"][f] = e["full"].get(f, 0) + full
         except ReachsetError:
             raise
         except Exception as ex:  # rosbags raises many types for damaged or unsupported bags
@@ -78,12 +85,21 @@ def inspect_bags(paths):
             row["stamps"] = _times(e["stamps"])
             row["joint_names"] = e["names"]
             row["filled"] = e["filled"]
+            row["filled_share"] = {f: v / e["count"] for f, v in e["full"].items()}
         out[topic] = row
     return out
 
 
-def identify_command(paths, topics):
-    """(command or None, reason): the ``reachset identify`` that works on these bags."""
+#: share of JointState messages with position, velocity and effort all filled from which
+#: ``--input effort`` is suggested (runs end with a sample without effort, as the LWA-4P's do)
+EFFORT_SHARE = 0.9
+
+
+def identify_command(paths, topics, robot=None, nominal=None):
+    """(command or None, reason): the ``reachset identify`` that works on these bags.
+
+    Without a plant-input topic, the command uses ``--input effort`` when the measurement
+    topic carries position, velocity and effort and ``robot`` (a URDF) is given."""
     js = [t for t, r in topics.items() if r["type"] == JOINT_STATE_TYPE]
     pi = [t for t, r in topics.items() if r["type"] == PLANT_INPUT_TYPE]
     if not js:
@@ -92,38 +108,61 @@ def identify_command(paths, topics):
     if len(js) > 1 and JOINT_STATES not in js:
         return None, (f"several JointState topics ({', '.join(js)}): choose the measurement with "
                       "--joint-states-topic")
-    if not pi:
-        why = "no reachset_msgs/msg/PlantInput topic"
-        if topics[y_topic].get("filled", {}).get("effort"):
-            why += (f"; {y_topic} has effort, from which u_p could be computed with the robot's URDF "
-                    "(--input effort, issue 15 item 3, not built yet)")
-        return None, why
-    u_topic = PLANT_INPUT if PLANT_INPUT in pi else pi[0]
-    if len(pi) > 1 and PLANT_INPUT not in pi:
-        return None, f"several PlantInput topics ({', '.join(pi)}): choose one with --input-topic"
     r = topics[y_topic]
+    effort = None
+    if not pi:
+        share = r.get("filled_share", {})
+        has_effort = all(share.get(f, 0.0) >= EFFORT_SHARE for f in ("position", "velocity", "effort"))
+        why = "no reachset_msgs/msg/PlantInput topic"
+        if not has_effort:
+            return None, why + f"; {y_topic} lacks velocity or effort, so u_p cannot be computed either"
+        if robot is None:
+            return None, (why + f"; {y_topic} has position, velocity and effort: pass the robot's URDF "
+                          "(reachset inspect BAG --robot URDF) for the command with --input effort")
+        from ..robot.effort import load_effort_input      # Pinocchio: only when asked for
+        effort = load_effort_input(robot, nominal)
+    else:
+        u_topic = PLANT_INPUT if PLANT_INPUT in pi else pi[0]
+        if len(pi) > 1 and PLANT_INPUT not in pi:
+            return None, f"several PlantInput topics ({', '.join(pi)}): choose one with --input-topic"
     names = r["joint_names"]
+    unnamed = ""
     if not names or any(not n for n in names):
-        return None, f"{y_topic} messages without joint names (--joint-names is not built yet)"
-    if len(names) > 1:
+        if effort is None:
+            return None, (f"{y_topic} messages without joint names: pass --joint-names with the names of "
+                          "their arrays, in order")
+        joints = list(effort.joint_names)
+        unnamed = f" --joint-names {','.join(joints)}"
+    elif len(names) > 1:
         joints = sorted(set.intersection(*(set(n) for n in names)))
     else:
         joints = list(names[0])
+    if effort is not None:
+        missing = [j for j in effort.joint_names if j not in joints]
+        if missing:
+            return None, f"joint {missing[0]} of {robot} is not on {y_topic}"
+        joints = [j for j in effort.joint_names]
     period = r["stamps"]["period_ms"]
     if not period:
         return None, f"fewer than two {JOINT_STATES} messages"
     dt = round(period * 1e-3, 6)
-    cmd = "reachset identify " + " ".join(str(p) for p in paths) + f" --joints {','.join(joints)} --dt {dt:g}"
+    cmd = "reachset identify " + " ".join(shlex.quote(str(p)) for p in paths) + f" --joints {','.join(joints)} --dt {dt:g}"
     if y_topic != JOINT_STATES:
         cmd += f" --joint-states-topic {y_topic}"
-    if u_topic != PLANT_INPUT:
+    if effort is not None:
+        cmd += f" --input effort --robot {shlex.quote(effort.urdf)}" + (
+            f" --nominal {shlex.quote(effort.nominal)}" if effort.nominal else "")
+    elif u_topic != PLANT_INPUT:
         cmd += f" --input-topic {u_topic}"
+    cmd += unnamed
     return cmd, f"sampling period {period:.4g} ms measured from the {y_topic} stamps"
 
 
 def run(args):
     topics = inspect_bags(args.bags)
-    cmd, why = identify_command(args.bags, topics)
+    if args.nominal is not None and args.robot is None:
+        raise ReachsetError("--nominal needs --robot URDF")
+    cmd, why = identify_command(args.bags, topics, args.robot, args.nominal)
     result = {"bags": [str(p) for p in args.bags], "topics": topics,
               "identify": {"command": cmd, "reason": why}}
     lines = []
