@@ -5,6 +5,7 @@ alone), the sampling period measured from the stamps, ``--joint-names`` for Join
 messages without names, bare .mcap/.db3 files, an unsupported metadata version.
 """
 import json
+import time
 import shutil
 import subprocess
 import sys
@@ -217,3 +218,89 @@ def test_inspect_suggests_the_effort_command_and_it_works(lwa_bags):
     assert "--input effort" in cmd and "--dt 0.004" in cmd, res
     out = cli(*shlex.split(cmd)[1:], "--horizon", 20, "--json")
     assert len(out["joints"]) == 6 and out["data"]["input"]["source"] == "effort"
+
+
+def test_monitor_node_with_effort_input_stops_where_check_finds_the_first_violation(ros, lwa_bags, tmp_path):
+    """Issue 15.3: ``monitor_node`` with ``input_source: effort`` monitors an arm from
+    /joint_states alone (real rclpy, real DDS). A model identified with ``--input effort`` on
+    run 2; the same run with a constant acceleration added to the measured position from
+    tick 600 on, sent as JointState messages (position, velocity, effort). The monitor's
+    first non-conformant tick is the one ``reachset check --input effort`` finds in the bag
+    of the same messages, it is after the onset, and it is the safe stop."""
+    from helpers import Bus
+    from sensor_msgs.msg import JointState
+    from reachset_ros import launch
+    from reachset_ros.nodes.common import stamp_ns, to_stamp
+    d, runs, model = lwa_bags
+    names = list(model.joint_names)
+    run = runs[1]
+    eff = ["--input", "effort", "--robot", DEFAULT_URDF, "--nominal", NOMINAL]
+    write_joint_states_only(tmp_path / "clean", [run], names)
+    cli("identify", tmp_path / "clean", "--horizon", 40, "--out", tmp_path / "m.yaml", *eff)
+    m = len(run.tau)                         # samples with an effort
+    onset, accel = 600, 5.0
+    q = run.q[:m].copy()
+    t = (np.arange(m) - onset).clip(min=0) * 0.004
+    q[:, 2] += 0.5 * accel * t ** 2
+    stamps = lwa4p.run_start_stamps([run])[0] + np.round((run.t[:m] - run.t[0]) * 1e9).astype(np.int64)
+    faulted = tmp_path / "faulted"
+    with bags.BagWriter(faulted) as w:
+        for k in range(m):
+            w.write(bags.JOINT_STATES, bags.joint_state(int(stamps[k]), names, q[k], run.qd[k], run.tau[k]),
+                    int(stamps[k]))
+    chk = cli("check", faulted, "--model", tmp_path / "m.yaml", "--json", *eff, code=1)
+    first_check = min(j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"])
+    assert first_check > stamps[onset]
+    bus = Bus()
+    proc = launch.start("monitor_node", {"model_file": str(tmp_path / "m.yaml"), "input_source": "effort",
+                                         "robot_urdf": str(DEFAULT_URDF), "robot_params": str(NOMINAL),
+                                         "max_missing_ticks": 10000, "window_dir": str(tmp_path / "w")}, tmp_path)
+    try:
+        assert bus.wait(lambda: bus.js.get_subscription_count() > 0, 60), proc.log.read_text()[-2000:]
+        for k in range(m):
+            msg = JointState(name=names, position=q[k].tolist(), velocity=run.qd[k].tolist(),
+                             effort=run.tau[k].tolist())
+            to_stamp(msg.header.stamp, int(stamps[k]))
+            bus.js.publish(msg)
+            time.sleep(0.002)
+            if bus.active_stops():
+                break
+        assert bus.wait(lambda: bus.active_stops(), 30), proc.log.read_text()[-2000:]
+        assert bus.wait(lambda: any(stamp_ns(s.header.stamp) >= first_check for s in list(bus.status)), 30)
+    finally:
+        launch.stop([proc])
+        bus.close()
+    verdicts = sorted((stamp_ns(s.header.stamp), min(s.margin) >= 0) for s in bus.status if len(s.margin))
+    first_monitor = min(st for st, ok in verdicts if not ok and st > stamps[200])     # after the warm-up
+    stop = bus.active_stops()[0]
+    assert first_monitor == first_check
+    assert stop.kind == "violation" and stamp_ns(stop.header.stamp) == first_check
+
+
+def test_monitor_core_with_effort_input_faults_on_bad_effort(lwa_bags, tmp_path):
+    """On the robot side bad data is a fault: a JointState without velocity or effort gives a
+    non-finite u_p (``invalid_sample``), one lacking a joint of the robot model a
+    ``name_mismatch``; good messages are checked with the u_p of robot.effort.plant_inputs."""
+    from reachset_ros.conformance import model as mdl
+    from reachset_ros.conformance.monitor import FaultEvent, TickEvent
+    from reachset_ros.nodes.monitor_node import MonitorCore
+    d, runs, model = lwa_bags
+    eff = ["--input", "effort", "--robot", DEFAULT_URDF, "--nominal", NOMINAL]
+    cli("identify", d / "plain", "--horizon", 10, "--out", tmp_path / "m.yaml", *eff)
+    src = load_effort_input(DEFAULT_URDF, NOMINAL)
+    names = list(model.joint_names)
+    r = runs[0]
+
+    def core():
+        return MonitorCore(mdl.load(tmp_path / "m.yaml"), None, 25, src)
+    c = core()
+    evs = []
+    for k in range(30):
+        evs += c.add_joint_state(1000 + 4_000_000 * k, names, r.q[k], r.qd[k], r.tau[k])
+    assert all(isinstance(e, TickEvent) for e in evs) and len(evs) == 30
+    assert np.array_equal(c.window[-1][2], src.plant_inputs(r.q[29:30], r.qd[29:30], r.tau[29:30])[0])
+    evs = c.add_joint_state(1000 + 4_000_000 * 30, names, r.q[30], r.qd[30], [])
+    assert [e.kind for e in evs if isinstance(e, FaultEvent)] == ["invalid_sample"]
+    c = core()
+    evs = c.add_joint_state(1000, names[:-1], r.q[0][:-1], r.qd[0][:-1], r.tau[0][:-1])
+    assert [(e.kind, e.joint) for e in evs if isinstance(e, FaultEvent)][-1] == ("name_mismatch", names[-1])

@@ -501,8 +501,9 @@ def segments_of(stamps, valid, dt):
 
 
 #: A bag whose measured sampling period (median stamp step) differs from dt by more than this
-#: share of dt is refused: its test cases would not be the model's (k steps of dt).
-PERIOD_TOLERANCE = 0.1
+#: share of dt is refused: its test cases would not be the model's (k steps of dt). The
+#: monitor's coverage watch uses the same 5 %.
+PERIOD_TOLERANCE = 0.05
 
 
 def measured_period(stamps):

@@ -36,6 +36,7 @@ from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
 from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
+from ..robot.effort import load_effort_input, plant_inputs
 from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
@@ -78,8 +79,13 @@ class MonitorCore:
       nothing, ``short_ticks`` those at which something but not step k* was checked.
     """
 
-    def __init__(self, model: mdl.ConformanceModel, joints=None, max_missing_ticks=25):
+    def __init__(self, model: mdl.ConformanceModel, joints=None, max_missing_ticks=25, effort=None):
         self.model = model
+        #: ``input_source: effort``: the plant input of each /joint_states message is computed
+        #: from its position, velocity and effort (:class:`~reachset_ros.robot.effort.EffortInput`)
+        self.effort = effort
+        self._effort_data = None if effort is None else effort.model.pin_model.createData()
+        self._effort_map = (None, None)
         self.joints = list(joints or model.joints)
         if len(set(self.joints)) != len(self.joints):
             raise ReachsetError(f"joints {self.joints} name a joint twice")
@@ -113,6 +119,35 @@ class MonitorCore:
 
     def add_y(self, stamp, names, values):
         return self.add("y", stamp, names, values)
+
+    def add_joint_state(self, stamp, names, position, velocity=(), effort=()):
+        """One JointState message: its position is y; with an effort source also u_p of the
+        same tick, ``M̂(q)⁻¹ (s τ − ψ̂(q, q̇))`` (:func:`reachset_ros.robot.effort.plant_inputs`,
+        the function ``reachset check|replay --input effort`` applies to a bag, so the two
+        agree to the bit). A message that lacks a joint of the robot model is a
+        ``name_mismatch`` fault; a missing or short velocity/effort array, or a non-finite
+        value, gives a non-finite u_p: an ``invalid_sample`` fault."""
+        events = self.add("y", stamp, names, position)
+        if self.effort is None:
+            return events
+        robot = self.effort.joint_names
+        names = list(names)
+        if self._effort_map[0] != names:
+            pos = {n: i for i, n in enumerate(names)}
+            missing = [j for j in robot if j not in pos]
+            if missing:
+                self.counters["rejected_u"] += 1
+                return events + [FaultEvent(stamp, "name_mismatch", f"/joint_states at {stamp} ns lacks joint "
+                                            f"{missing[0]} of the robot model (input_source effort)", missing[0])]
+            self._effort_map = (names, np.array([pos[j] for j in robot], dtype=np.intp))
+        idx = self._effort_map[1]
+        n = len(names)
+        arrs = []
+        for a in (position, velocity, effort):
+            a = np.asarray(a, dtype=np.float64)
+            arrs.append(a[idx] if len(a) == n else np.full(len(robot), np.nan))
+        u = plant_inputs(self.effort.model, arrs[0][None], arrs[1][None], arrs[2][None], self._effort_data)[0]
+        return events + self.add("u", stamp, list(robot), u)
 
     def add_u(self, stamp, names, values):
         return self.add("u", stamp, names, values)
@@ -235,6 +270,14 @@ class MonitorNode(Node):
                                     "to the horizon, all conformant, with no fault (the violating condition has "
                                     "cleared); -1: the model's k* + 1; 0: reset unconditionally", -1, 100000,
                                     integer=True))
+        self.declare_parameter("input_source", "plant_input",
+                               desc("where u_p comes from: 'plant_input' (the topic) or 'effort' (computed from "
+                                    "/joint_states position, velocity and effort with robot_urdf: u_p = "
+                                    "M^-1(q) (tau - psi(q, qd)), as `reachset check --input effort`)", read_only=True))
+        self.declare_parameter("robot_urdf", "", desc("input_source effort: the robot's URDF (nominal M, psi)",
+                                                      read_only=True))
+        self.declare_parameter("robot_params", "", desc("input_source effort: identified parameters applied over "
+                                                        "the URDF (optional)", read_only=True))
         self.clean_ticks = 0          # consecutive ticks checked to k*, conformant, no fault (since the last one that was not)
         self.last_unclean = "no tick checked yet"
         self.core = None
@@ -248,8 +291,19 @@ class MonitorNode(Node):
         self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", STATUS_QOS)
         self.stop_pub = self.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.effort, self.effort_error = None, ""
+        source = self.get_parameter("input_source").value
+        if source == "effort":
+            try:
+                self.effort = load_effort_input(self.get_parameter("robot_urdf").value or None,
+                                                self.get_parameter("robot_params").value or None)
+            except (ReachsetError, OSError) as e:
+                self.effort_error = f"input_source effort: {e}"
+        elif source != "plant_input":
+            self.effort_error = f"input_source must be 'plant_input' or 'effort', got {source!r}"
         self.create_subscription(JointState, "joint_states", self.on_joint_states, INPUT_QOS)
-        self.create_subscription(PlantInput, "plant_input", self.on_plant_input, INPUT_QOS)
+        if source != "effort":
+            self.create_subscription(PlantInput, "plant_input", self.on_plant_input, INPUT_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
@@ -259,6 +313,8 @@ class MonitorNode(Node):
             ok, why = self.load(path)
             if not ok:
                 self.get_logger().error(why)
+        elif self.effort_error:
+            self.get_logger().error(self.effort_error + " (no model can be loaded until it is fixed)")
         # the initial state, latched: a controller waiting for the monitor may start
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()
@@ -269,11 +325,13 @@ class MonitorNode(Node):
     # -- configuration ------------------------------------------------------------------
     def build(self, path, joints=None, max_missing=None):
         """A new :class:`MonitorCore` for ``path`` (not applied); ``(core, model_id, reason)``."""
+        if self.effort_error:
+            return None, "", self.effort_error
         try:
             model = mdl.load(path)
             joints = joints if joints is not None else [j for j in self.get_parameter("joints").value if j]
             core = MonitorCore(model, joints or None, max_missing if max_missing is not None
-                               else self.get_parameter("max_missing_ticks").value)
+                               else self.get_parameter("max_missing_ticks").value, self.effort)
             model_id = mdl.file_sha256(path)[:12]
         except (ReachsetError, OSError) as e:
             return None, "", str(e)
@@ -315,6 +373,17 @@ class MonitorNode(Node):
 
     # -- data ---------------------------------------------------------------------------
     def on_joint_states(self, msg):
+        if self.effort is not None:
+            if self.core is None:
+                self.counters["ignored_without_model"] += 1
+                return
+            now = time.monotonic()
+            for kind in TOPIC:          # both halves of the tick come with this message
+                self.last_rx_wall[kind] = now
+                self.first_rx_wall.setdefault(kind, now)
+            self.handle_events(self.core.add_joint_state(stamp_ns(msg.header.stamp), list(msg.name), msg.position,
+                                                         msg.velocity, msg.effort))
+            return
         self.on_data("y", msg.header.stamp, msg.name, msg.position)
 
     def on_plant_input(self, msg):
