@@ -4,7 +4,8 @@ Least squares with Pinocchio's joint-torque regressor (base inertial parameters,
 friction and a torque scale per joint) on the given runs of the real recordings; the
 result is the nominal model M_hat, psi_hat of the feedback linearization and of
 ``reachset import-lwa4p`` (see reachset_ros.robot.lwa4p and docs/robot.md). The shipped
-config/lwa4p_nominal.yaml was made with ``--runs 1-70``; runs 71-100 are held out.
+config/lwa4p_nominal.yaml was made with ``--runs train`` (the 75 runs not divisible by 4);
+held-out runs are refused unless ``--allow-held-out``.
 """
 import dataclasses
 import shlex
@@ -20,7 +21,11 @@ HELP = "identify the nominal LWA-4P model (inertias, armature, friction, torque 
 
 def add_arguments(p):
     p.add_argument("dir", metavar="DIR", help="data directory with measurement_i/ folders")
-    p.add_argument("--runs", required=True, help="runs to fit on, e.g. 1-70 (never the held-out ones)")
+    p.add_argument("--runs", required=True,
+                   help="runs to fit on: 'train' (the 75 runs not divisible by 4), a range, or 'A-B:train'; "
+                        "held-out runs (divisible by 4) are refused unless --allow-held-out")
+    p.add_argument("--allow-held-out", action="store_true",
+                   help="fit on held-out runs too (an experiment, never a shipped model: docs/real-data.md)")
     p.add_argument("--out", required=True, metavar="MODEL.yaml", help="output file (must not exist)")
     p.add_argument("--method", choices=["lmi", "ls"], default="lmi",
                    help="lmi: physically consistent (default); ls: plain base-parameter least squares")
@@ -45,6 +50,8 @@ def _command(args):
         parts += ["--cutoff", repr(args.cutoff)]
     if args.lag is not None:
         parts += ["--lag", str(args.lag)]
+    if args.allow_held_out:
+        parts += ["--allow-held-out"]
     return shlex.join(parts)
 
 
@@ -58,6 +65,10 @@ def run(args):
     if args.lag is not None:
         prep = dataclasses.replace(prep, lag=args.lag)
     runs = lwa4p.parse_runs(args.runs)
+    bad = [r for r in runs if lwa4p.is_held_out(r)]
+    if bad and not args.allow_held_out:
+        raise ReachsetError(f"--runs {args.runs} includes held-out run {bad[0]} (runs divisible by 4 are held out, "
+                            "docs/real-data.md); use --runs train, or --allow-held-out for an experiment")
     held = lwa4p.parse_runs(args.evaluate) if args.evaluate else []
     if set(runs) & set(held):
         raise ReachsetError(f"--evaluate {args.evaluate} overlaps --runs {args.runs}")

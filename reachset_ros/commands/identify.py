@@ -31,6 +31,7 @@ import sys
 import numpy as np
 
 from ..conformance import model as mdl
+from ..conformance.calibration import cross_validate
 from ..conformance.corollary1 import identify_corollary1
 from ..conformance.estimators import ESTIMATORS, Estimator
 from ..conformance.identify import identify_quadratic, identify_sets, stable_horizon
@@ -76,16 +77,21 @@ def add_arguments(p):
     p.add_argument("--inflation", type=float, default=None, metavar="F",
                    help="the model's inflation: the monitor checks the sets scaled by 1 + F (default 0; "
                         "with --validate it is calibrated instead, so the two exclude each other)")
+    p.add_argument("--calibrate", type=int, default=None, metavar="K",
+                   help="calibrate the inflation by K-fold cross-validation inside the given bags (folds of whole "
+                        "runs: stretches of consecutive stamps); per joint the largest over the folds of the "
+                        "smallest --inflation-grid value at which the fold is conformant with sets identified on "
+                        "the other folds; the model stores the largest over the joints")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
                    help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
 
 
 def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=None, thm=None,
-                    cost="linear", method="theorem1"):
+                    cost="linear", method="theorem1", settle=True):
     """Identify each joint of ``series``; returns {name: (IdentifiedSets, Deviations, settled_k)}.
 
     ``settled_k`` (Remark 3) is computed with the linear cost; it is None for Corollary 1,
-    which needs no horizon.
+    which needs no horizon, and when ``settle`` is false (the folds of ``--calibrate``).
     """
     thm = thm or Theorem1.build(plant, horizon)
     out = {}
@@ -102,11 +108,18 @@ def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=Non
                     sets = identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
                 else:
                     sets = identify_sets(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
-                settled, _ = stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                settled = (stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)[0]
+                           if settle else None)
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: {e}") from None
         out[name] = (sets, dev, settled)
     return out, thm
+
+
+def _joint_sets(sets, dev, horizon):
+    """The model-file value of one joint's identified sets."""
+    return mdl.JointSets(tuple(sets.alpha_w.tolist()), tuple(sets.alpha_v.tolist()), tuple(sets.c_w.tolist()),
+                         tuple(sets.c_v.tolist()), dev.test_cases, horizon)
 
 
 def _grid(values):
@@ -164,8 +177,17 @@ def run(args):
     k_min, weak = require_minimum_horizon(plant, args.horizon, args.allow_weak_horizon)
     if not np.isfinite(args.fault_accel):
         raise ReachsetError("--fault-accel must be finite")
-    if args.inflation_grid is not None and args.validate is None:
-        raise ReachsetError("--inflation-grid needs --validate")
+    if args.inflation_grid is not None and args.validate is None and args.calibrate is None:
+        raise ReachsetError("--inflation-grid needs --validate or --calibrate")
+    if args.calibrate is not None:
+        if args.validate is not None:
+            raise ReachsetError("--calibrate and --validate exclude each other (each calibrates the inflation)")
+        if args.inflation is not None:
+            raise ReachsetError("--calibrate and --inflation exclude each other (--calibrate calibrates the inflation)")
+        if args.calibrate < 2:
+            raise ReachsetError(f"--calibrate needs K >= 2 folds, got {args.calibrate}")
+        if args.method == "corollary1":
+            raise ReachsetError("--calibrate works with --method theorem1 only")
     if args.inflation is not None:
         if args.validate is not None:
             raise ReachsetError("--inflation and --validate exclude each other (--validate calibrates the inflation)")
@@ -186,9 +208,7 @@ def run(args):
                                    cost=args.cost, method=args.method)
     joints, js = {}, {}
     for name, (sets, dev, settled) in results.items():
-        joints[name] = mdl.JointSets(tuple(sets.alpha_w.tolist()), tuple(sets.alpha_v.tolist()),
-                                     tuple(sets.c_w.tolist()), tuple(sets.c_v.tolist()),
-                                     dev.test_cases, args.horizon)
+        joints[name] = _joint_sets(sets, dev, args.horizon)
         js[name] = {"alpha_w": sets.alpha_w.tolist(), "alpha_v": sets.alpha_v.tolist(),
                     "c_w": sets.c_w.tolist(), "c_v": sets.c_v.tolist(),
                     "test_cases": dev.test_cases, "horizon": args.horizon,
@@ -197,6 +217,17 @@ def run(args):
                     "soundness_inflation": float(sets.soundness_bump),
                     "objective": float(sets.cost)}
     inflation = 0.0 if args.inflation is None else float(args.inflation)
+    calib = None
+    if args.calibrate is not None:
+        def fit(sub):
+            res, _ = identify_series(plant, est, sub, args.horizon, args.centers, args.alpha_lower, thm=thm,
+                                     cost=args.cost, method=args.method, settle=False)
+            return {n: _joint_sets(st, dv, args.horizon) for n, (st, dv, _) in res.items()}
+        calib = cross_validate(plant, est, series, args.horizon, args.calibrate, grid, fit, thm)
+        for name, c in calib.items():
+            js[name]["inflation"] = c["inflation"]
+            js[name]["calibration"] = c
+        inflation = max(c["inflation"] for c in calib.values())
     result = {"inflation": inflation, "joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
               "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak}
     if vseries is not None:
@@ -211,6 +242,10 @@ def run(args):
         if args.validate:
             prov["validation"] = {"bags": mdl.provenance(args.validate, "")["bags"],
                                   "inflation_grid": grid, "fault_accel": args.fault_accel}
+        if calib is not None:
+            prov["calibration"] = {"folds": args.calibrate, "inflation_grid": grid,
+                                   "inflation": {n: c["inflation"] for n, c in calib.items()},
+                                   "flagged": [n for n, c in calib.items() if c["flagged"]]}
         m = mdl.ConformanceModel(plant, {"kind": "lwa4p_joint", "dt": args.dt}, est, args.horizon, joints,
                                  inflation, prov, k_min, weak)
         mdl.save(m, out)
@@ -232,6 +267,11 @@ def run(args):
                 + (" (FLAGGED: no grid value is conformant)" if val["flagged"] else "")
                 + f"; {f['accel']} rad/s^2 fault at inflation {val['model_inflation']} "
                 + (f"detected after {f['delay_ticks']} ticks" if f["detected"] else "NOT detected"))
-    if vseries is not None:
+    if calib is not None:
+        for n, c in calib.items():
+            lines.append(f"{n}: cross-validated inflation {c['inflation']} ({args.calibrate} folds of {c['runs']} runs; "
+                         "per fold " + ", ".join(str(f["chosen_inflation"]) for f in c["folds"])
+                         + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
+    if vseries is not None or calib is not None:
         lines.append(f"model inflation: {inflation}")
     emit(args, result, "\n".join(lines) + (f"\nmodel written to {out}" if out else ""))

@@ -27,6 +27,8 @@ corollary1
     The conservative state-based identification of Corollary 1 (:func:`identify_corollary1`).
 validation
     Held-out validation, inflation calibration, fault injection (beyond the paper).
+calibration
+    Inflation by K-fold cross-validation inside the identification data (``identify --calibrate K``).
 model
     The conformance model file (plant, estimator, horizon, per-joint sets, inflation).
 monitor

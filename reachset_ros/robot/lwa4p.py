@@ -6,8 +6,9 @@ logged motor torque command, units unknown) and ``time.csv`` (N, seconds, 4 ms s
 
 Identification (:func:`fit_nominal`): the nominal model M_hat, psi_hat used by the
 controller's feedback linearization (paper eq. 6) and by :func:`import_runs` for
-``u_p = M_hat(q)^-1 (s * tau_logged - psi_hat(q, qd))`` is fitted on runs 1-70 only, with
-:func:`reachset_ros.robot.inertial_id.identify_inertial`; runs 71-100 are held out. Preprocessing
+``u_p = M_hat(q)^-1 (s * tau_logged - psi_hat(q, qd))`` is fitted on the 75 training runs
+only (``--runs train``: run numbers not divisible by 4, :func:`is_held_out`), with
+:func:`reachset_ros.robot.inertial_id.identify_inertial`; the other 25 are held out. Preprocessing
 (:class:`Preprocessing`): zero-phase 4th-order Butterworth low-pass (``cutoff_hz``) on the
 velocities and on the logged torques of each run, accelerations by central differences of
 the filtered velocities, the torque of row k paired with the motion sample ``k + lag``
@@ -42,10 +43,33 @@ NOMINAL_FILE = "lwa4p_nominal.yaml"
 
 # --------------------------------------------------------------------------- reading
 
+#: Number of recordings in data/lwa4p_iros2018.
+N_RUNS = 100
+#: The trajectory families of the recordings (runs 1-20, 21-40, 41-60, 61-80 near one pose
+#: each; 81-100 sweeping the workspace), for the leave-one-family-out extrapolation figure.
+FAMILIES = ((1, 20), (21, 40), (41, 60), (61, 80), (81, 100))
+
+
+def is_held_out(run: int) -> bool:
+    """The real-data protocol (docs/real-data.md): runs whose number is divisible by 4 are
+    held out, never used to fit the nominal model, the sets or an inflation."""
+    return int(run) % 4 == 0
+
+
 def parse_runs(spec: str) -> list:
-    """Run numbers of a range spec: ``"1-70"``, ``"71-100"``, ``"1,3,5-9"`` (1-based)."""
+    """Run numbers of a spec: ranges ``"1-70"``, ``"1,3,5-9"`` (1-based), or the protocol's
+    names ``"train"`` (the 75 runs not divisible by 4) and ``"heldout"`` (the 25 that are);
+    ``"A-B:train"`` / ``"A-B:heldout"`` keep those of a range."""
+    spec = str(spec).strip()
+    keep = None
+    if ":" in spec:
+        spec, keep = (x.strip() for x in spec.rsplit(":", 1))
+        if keep not in ("train", "heldout"):
+            raise ReachsetError(f"bad run range {spec}:{keep!r} (after ':' expected train or heldout)")
+    if spec in ("train", "heldout"):
+        spec, keep = f"1-{N_RUNS}", spec
     runs = []
-    for part in str(spec).split(","):
+    for part in spec.split(","):
         part = part.strip()
         m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
         if not m:
@@ -57,6 +81,10 @@ def parse_runs(spec: str) -> list:
         runs.extend(range(a, b + 1))
     if len(set(runs)) != len(runs):
         raise ReachsetError(f"bad run range {spec!r}: runs repeat")
+    if keep is not None:
+        runs = [r for r in runs if is_held_out(r) == (keep == "heldout")]
+        if not runs:
+            raise ReachsetError(f"bad run range {spec}:{keep}: no {keep} run in it")
     return runs
 
 
@@ -205,7 +233,7 @@ def fit_nominal(root, runs, prep: Preprocessing = Preprocessing(), prior=None,
     root : path
         Data directory.
     runs : list of int or str
-        Runs to fit on (e.g. ``"1-70"``).
+        Runs to fit on (e.g. ``"train"``; never held-out runs).
     prep : Preprocessing
     prior : RobotModel, optional
         Prior / placeholder model (default: the shipped URDF).
