@@ -1,4 +1,4 @@
-"""The real LWA-4P recordings: reading, nominal identification (runs 1-70 only), bag import."""
+"""The real LWA-4P recordings: reading, nominal identification (the 75 training runs only), bag import."""
 import shutil
 
 import numpy as np
@@ -16,6 +16,13 @@ NOMINAL = lwa4p.default_nominal_path()
 
 
 def test_parse_runs():
+    assert lwa4p.parse_runs("train") == [r for r in range(1, 101) if r % 4]
+    assert lwa4p.parse_runs("heldout") == list(range(4, 101, 4))
+    assert lwa4p.parse_runs("1-10:train") == [1, 2, 3, 5, 6, 7, 9, 10]
+    assert lwa4p.parse_runs("1-10:heldout") == [4, 8]
+    for bad in ("1-3:heldout", "1-5:test"):
+        with pytest.raises(ReachsetError):
+            lwa4p.parse_runs(bad)
     assert lwa4p.parse_runs("1-3") == [1, 2, 3]
     assert lwa4p.parse_runs("71-72,5") == [71, 72, 5]
     assert lwa4p.parse_runs("7") == [7]
@@ -141,7 +148,7 @@ def refit(lwa4p_dir):
 
     lwa4p.read_run = spy
     try:
-        fit = lwa4p.fit_nominal(lwa4p_dir, "1-70")
+        fit = lwa4p.fit_nominal(lwa4p_dir, "train")
     finally:
         lwa4p.read_run = orig
     return fit, read
@@ -149,11 +156,12 @@ def refit(lwa4p_dir):
 
 def test_shipped_nominal_is_what_its_command_produces(refit):
     fit, read = refit
-    assert sorted(read) == list(range(1, 71))           # runs 71-100 never used for fitting
+    # the protocol: no held-out run (divisible by 4) is ever read by the fit
+    assert sorted(read) == [r for r in range(1, 101) if r % 4] and not any(lwa4p.is_held_out(r) for r in read)
     doc = yaml.safe_load(NOMINAL.read_text())
     assert doc["command"].startswith("reachset fit-lwa4p ")
-    assert doc["command"].split()[3:7] == ["--runs", "1-70", "--out", "config/lwa4p_nominal.yaml"]
-    assert doc["data"]["runs"] == "1-70"
+    assert doc["command"].split()[3:7] == ["--runs", "train", "--out", "config/lwa4p_nominal.yaml"]
+    assert lwa4p.parse_runs(doc["data"]["runs"]) == lwa4p.parse_runs("train")
     shipped = lwa4p.load_nominal()
     np.testing.assert_allclose(shipped.torque_scale, fit.identified.torque_scale, rtol=1e-4)
     np.testing.assert_allclose(rb.BaseParameters.from_model(shipped).base(
@@ -163,7 +171,7 @@ def test_shipped_nominal_is_what_its_command_produces(refit):
 
 def test_identified_model_predicts_held_out_torques_better_than_placeholder(refit, lwa4p_dir):
     fit, _ = refit
-    held = lwa4p.read_runs(lwa4p_dir, "71-100")
+    held = lwa4p.read_runs(lwa4p_dir, "heldout")
     ident = lwa4p.torque_rms(fit.identified.model, held)
     ph = lwa4p.torque_rms(fit.placeholder.model, held)
     u = np.vstack([r.tau for r in held])
@@ -181,19 +189,21 @@ def test_identified_model_predicts_held_out_torques_better_than_placeholder(refi
 
 def test_fit_command_refuses_overlap_and_existing_output(lwa4p_dir, tmp_path, capsys):
     out = tmp_path / "m.yaml"
-    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-5", "--out", str(out),
-                 "--evaluate", "5-6"]) == 2
+    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-8", "--out", str(out)]) == 2
+    assert "held-out run 4" in capsys.readouterr().err and not out.exists()
+    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-3", "--out", str(out),
+                 "--evaluate", "3-6"]) == 2
     assert "overlaps" in capsys.readouterr().err
     out.write_text("x")
-    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-5", "--out", str(out)]) == 2
+    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-3", "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
 
 
 def test_fit_command_writes_a_loadable_model(lwa4p_dir, tmp_path, capsys):
     out = tmp_path / "m.yaml"
-    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-10", "--out", str(out),
+    assert main(["fit-lwa4p", str(lwa4p_dir), "--runs", "1-10:train", "--out", str(out),
                  "--json"]) == 0
     m = rb.load_model(params=out)
     assert m.joint_names == rb.JOINT_NAMES and np.all(m.torque_scale > 0)
-    assert "--runs 1-10" in yaml.safe_load(out.read_text())["command"]
+    assert "--runs 1-10:train" in yaml.safe_load(out.read_text())["command"]
     assert not list(tmp_path.glob("*.partial"))

@@ -1,7 +1,16 @@
-"""End to end on the real LWA-4P recordings: identify on runs 1-70, check 1-70 and 71-100."""
+"""End to end on the real LWA-4P recordings, on the real-data protocol (docs/real-data.md).
+
+Runs whose number is divisible by 4 are held out: the nominal model (config/lwa4p_nominal.yaml,
+checked in test_lwa4p.py), the sets and the inflation are fitted on the other 75.
+"""
 import json
 import subprocess
 import sys
+
+import yaml
+
+from reachset_ros.commands.identify import DEFAULT_GRID
+from reachset_ros.robot import lwa4p
 
 
 def cli(*args):
@@ -14,22 +23,74 @@ def cli(*args):
     return res
 
 
-def test_identify_on_runs_1_70_is_conformant_and_report_71_100(lwa4p_dir, tmp_path):
-    cli("import-lwa4p", lwa4p_dir, "--runs", "1-70", "--out", tmp_path / "train")
-    cli("import-lwa4p", lwa4p_dir, "--runs", "71-100", "--out", tmp_path / "val")
-    ident = cli("identify", tmp_path / "train", "--out", tmp_path / "model.yaml", "--json")
+def test_calibrated_model_from_the_training_runs_is_conformant_on_the_held_out_runs(lwa4p_dir, tmp_path):
+    """Issue 15 check: ``identify --calibrate 5`` on the 75 training runs (imported with the
+    nominal model fitted on them alone); 0 held-out violating ticks on all six joints, the
+    inflation reported per joint and stored in the model; at inflation 0 the training runs
+    are conformant by construction; replay (the monitor's code path) agrees with check."""
+    cli("import-lwa4p", lwa4p_dir, "--runs", "train", "--out", tmp_path / "train")
+    cli("import-lwa4p", lwa4p_dir, "--runs", "heldout", "--out", tmp_path / "heldout")
+    ident = cli("identify", tmp_path / "train", "--calibrate", 5, "--out", tmp_path / "model.yaml", "--json")
     assert len(ident["joints"]) == 6
-    train = cli("check", tmp_path / "train", "--model", tmp_path / "model.yaml", "--json")
-    assert train["conformant"]
-    for j in train["joints"].values():
-        assert j["violations"] == 0 and j["test_cases"] > 40000
-    val = cli("check", tmp_path / "val", "--model", tmp_path / "model.yaml", "--json")
-    ticks = val["data"]["messages"]["/plant_input"]
-    shares = {n: j["violations"] / ticks for n, j in val["joints"].items()}
-    print("violation share on runs 71-100:", shares)
-    assert all(0.0 <= s <= 1.0 for s in shares.values())
-    # the replay (online monitor code path) agrees with the batch check on held-out data
-    rep = cli("replay", tmp_path / "val", "--model", tmp_path / "model.yaml", "--json")
-    for n in val["joints"]:
-        assert rep["joints"][n]["violations"] == val["joints"][n]["violations"]
-        assert rep["joints"][n]["first_violation_ns"] == val["joints"][n]["first_violation_ns"]
+    per_joint = {n: j["inflation"] for n, j in ident["joints"].items()}
+    assert ident["inflation"] == max(per_joint.values())
+    assert yaml.safe_load((tmp_path / "model.yaml").read_text())["inflation"] == ident["inflation"]
+    for j in ident["joints"].values():
+        assert j["calibration"]["runs"] == 75 and len(j["calibration"]["folds"]) == 5
+    held = cli("check", tmp_path / "heldout", "--model", tmp_path / "model.yaml", "--json")
+    print("inflation per joint:", per_joint, "held-out violations:",
+          {n: j["violations"] for n, j in held["joints"].items()})
+    assert held["conformant"]
+    for j in held["joints"].values():
+        assert j["violations"] == 0 and j["test_cases"] > 17000
+    rep = cli("replay", tmp_path / "heldout", "--model", tmp_path / "model.yaml", "--json")
+    for n in held["joints"]:
+        assert rep["joints"][n]["violations"] == held["joints"][n]["violations"]
+    cli("identify", tmp_path / "train", "--out", tmp_path / "m0.yaml")
+    train = cli("check", tmp_path / "train", "--model", tmp_path / "m0.yaml", "--json")
+    assert train["conformant"] and all(j["violations"] == 0 for j in train["joints"].values())
+
+
+def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_needs(lwa4p_dir, tmp_path):
+    """``--calibrate K`` recomputed independently: run i (stamp order) is in fold i mod K; for
+    each fold, sets identified on a bag of the other runs and checked on a bag of the fold's
+    runs with the reported per-joint inflation are conformant, and for every joint with a
+    positive inflation some fold is violated at the next smaller grid value."""
+    runs = [1, 2, 3, 5, 6, 7]
+    K, H = 3, 40
+    cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, runs)), "--out", tmp_path / "all")
+    ident = cli("identify", tmp_path / "all", "--horizon", H, "--calibrate", K, "--json")
+    grid = [0.0, *DEFAULT_GRID]
+    infl = {n: j["inflation"] for n, j in ident["joints"].items()}
+    needed = {n: False for n in infl}
+    for f in range(K):
+        fold = [r for i, r in enumerate(runs) if i % K == f]
+        rest = [r for i, r in enumerate(runs) if i % K != f]
+        cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, fold)), "--out", tmp_path / f"f{f}")
+        cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, rest)), "--out", tmp_path / f"r{f}")
+        for n, j in ident["joints"].items():
+            assert j["calibration"]["folds"][f]["segments"] == len(fold)      # whole runs, none split
+        for value in sorted(set(infl.values()) | {g for v in infl.values() for g in grid if g < v}):
+            m = tmp_path / f"m{f}_{value}.yaml"
+            cli("identify", tmp_path / f"r{f}", "--horizon", H, "--inflation", value, "--out", m)
+            chk = cli("check", tmp_path / f"f{f}", "--model", m, "--json")
+            for n, v in infl.items():
+                if value == v:
+                    assert chk["joints"][n]["violations"] == 0, (f, n, v)
+                below = [g for g in grid if g < v]
+                if below and value == below[-1] and chk["joints"][n]["violations"] > 0:
+                    needed[n] = True
+    for n, v in infl.items():
+        assert v == 0.0 or needed[n], (n, v)
+    line = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", str(tmp_path / "all"),
+                           "--calibrate", "7"], capture_output=True, text=True)
+    assert line.returncode == 2 and "6 runs" in line.stderr and "at least K" in line.stderr
+    for bad in (["--calibrate", "1"], ["--calibrate", "3", "--inflation", "0.1"]):
+        p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", str(tmp_path / "all"), *bad],
+                           capture_output=True, text=True)
+        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "--calibrate" in p.stderr
+
+
+def test_held_out_runs_are_the_protocols(lwa4p_dir):
+    assert [r for r in range(1, 101) if lwa4p.is_held_out(r)] == list(range(4, 101, 4))
+    assert len(lwa4p.parse_runs("train")) == 75 and len(lwa4p.parse_runs("heldout")) == 25
