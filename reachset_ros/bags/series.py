@@ -667,7 +667,7 @@ def _read_one_effort(path, joints, dt, y_topic, effort, joint_names=None):
             if nm not in c.stamps:
                 raise ReachsetError(f"{path}: joint {nm} of the robot model has no {f} on {y_topic} "
                                     "(--input effort needs position, velocity and effort of every joint "
-                                    "of the model; --robot with fewer joints, or --input topic)")
+                                    "of the model; lock the joints the bag lacks with --lock-joints)")
     if joints is None or list(joints) == ["all"]:
         joints = robot
     for nm in joints:

@@ -21,6 +21,9 @@ def add_bag_arguments(p, joints=True):
     p.add_argument("--robot", metavar="URDF", help="--input effort: the robot's URDF (the nominal model M, psi)")
     p.add_argument("--nominal", metavar="PARAMS.yaml",
                    help="--input effort: identified parameters applied over the URDF (e.g. config/lwa4p_nominal.yaml)")
+    p.add_argument("--lock-joints", metavar="a,b,...",
+                   help="--input effort: URDF joints locked at their neutral configuration (e.g. a gripper's "
+                        "fingers that the bag does not carry)")
     p.add_argument("--joint-names", metavar="a,b,...",
                    help="names of the arrays of JointState messages whose name[] is empty (otherwise refused)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -41,15 +44,19 @@ def reader_options(args):
         if robot is None:
             raise ReachsetError("--input effort needs --robot URDF")
         from ..robot.effort import load_effort_input   # Pinocchio: only when asked for
-        effort = load_effort_input(robot, nominal)
-    elif robot is not None or nominal is not None:
-        raise ReachsetError("--robot and --nominal are only used with --input effort")
+        lock = getattr(args, "lock_joints", None)
+        effort = load_effort_input(robot, nominal, lock=_names(lock, "--lock-joints") if lock else None)
+    elif robot is not None or nominal is not None or getattr(args, "lock_joints", None):
+        raise ReachsetError("--robot, --nominal and --lock-joints are only used with --input effort")
     names = getattr(args, "joint_names", None)
-    if names is not None:
-        names = [j.strip() for j in str(names).split(",") if j.strip()]
-        if not names or len(set(names)) != len(names):
-            raise ReachsetError("--joint-names: give distinct, non-empty joint names, e.g. a,b,c")
-    return {"effort": effort, "joint_names": names}
+    return {"effort": effort, "joint_names": None if names is None else _names(names, "--joint-names")}
+
+
+def _names(text, option):
+    names = [j.strip() for j in str(text).split(",") if j.strip()]
+    if not names or len(set(names)) != len(names):
+        raise ReachsetError(f"{option}: give distinct, non-empty joint names, e.g. a,b,c")
+    return names
 
 
 def parse_joints(text):

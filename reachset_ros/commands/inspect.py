@@ -137,10 +137,15 @@ def identify_command(paths, topics, robot=None, nominal=None):
         joints = sorted(set.intersection(*(set(n) for n in names)))
     else:
         joints = list(names[0])
+    lock = ""
     if effort is not None:
         missing = [j for j in effort.joint_names if j not in joints]
         if missing:
-            return None, f"joint {missing[0]} of {robot} is not on {y_topic}"
+            if len(missing) == len(effort.joint_names):
+                return None, f"no joint of {robot} is on {y_topic}"
+            from ..robot.effort import load_effort_input
+            effort = load_effort_input(robot, nominal, lock=missing)
+            lock = f" --lock-joints {','.join(missing)}"
         joints = [j for j in effort.joint_names]
     period = r["stamps"]["period_ms"]
     if not period:
@@ -154,8 +159,12 @@ def identify_command(paths, topics, robot=None, nominal=None):
             f" --nominal {shlex.quote(effort.nominal)}" if effort.nominal else "")
     elif u_topic != PLANT_INPUT:
         cmd += f" --input-topic {u_topic}"
-    cmd += unnamed
-    return cmd, f"sampling period {period:.4g} ms measured from the {y_topic} stamps"
+    cmd += lock + unnamed
+    why = f"sampling period {period:.4g} ms measured from the {y_topic} stamps"
+    if lock:
+        why += (f"; joints of the URDF the bag does not carry are locked at their neutral configuration "
+                f"({lock.split()[-1]}): right for a gripper's fingers, wrong for an arm joint")
+    return cmd, why
 
 
 def run(args):

@@ -278,6 +278,9 @@ class MonitorNode(Node):
                                                       read_only=True))
         self.declare_parameter("robot_params", "", desc("input_source effort: identified parameters applied over "
                                                         "the URDF (optional)", read_only=True))
+        self.declare_parameter("robot_locked_joints", [""], desc("input_source effort: URDF joints locked at their "
+                                                                 "neutral configuration (e.g. gripper fingers that "
+                                                                 "/joint_states does not carry)", read_only=True))
         self.clean_ticks = 0          # consecutive ticks checked to k*, conformant, no fault (since the last one that was not)
         self.last_unclean = "no tick checked yet"
         self.core = None
@@ -295,8 +298,9 @@ class MonitorNode(Node):
         source = self.get_parameter("input_source").value
         if source == "effort":
             try:
+                lock = [j for j in self.get_parameter("robot_locked_joints").value if j]
                 self.effort = load_effort_input(self.get_parameter("robot_urdf").value or None,
-                                                self.get_parameter("robot_params").value or None)
+                                                self.get_parameter("robot_params").value or None, lock=lock or None)
             except (ReachsetError, OSError) as e:
                 self.effort_error = f"input_source effort: {e}"
         elif source != "plant_input":

@@ -187,7 +187,7 @@ def create_data(model: RobotModel) -> pin.Data:
 
 # --------------------------------------------------------------------------- loading
 
-def _read_armature(urdf: Path, names) -> np.ndarray:
+def _read_armature(urdf: Path, names, locked=()) -> np.ndarray:
     arm = np.zeros(len(names))
     try:
         root = ET.parse(urdf).getroot()
@@ -195,13 +195,15 @@ def _read_armature(urdf: Path, names) -> np.ndarray:
         raise ReachsetError(f"{urdf}: malformed URDF ({e})") from e
     for el in root.iter(_ARMATURE_TAG):
         j = el.get("joint")
+        if j in locked:
+            continue
         if j not in names:
             raise ReachsetError(f"{urdf}: armature for unknown joint {j!r}")
         arm[names.index(j)] = float(el.get("value"))
     return arm
 
 
-def load_model(urdf=None, params=None) -> RobotModel:
+def load_model(urdf=None, params=None, joints=None) -> RobotModel:
     """Load the robot model.
 
     Parameters
@@ -212,6 +214,11 @@ def load_model(urdf=None, params=None) -> RobotModel:
     params : str, Path or dict, optional
         Identified parameters (the YAML written by ``reachset fit-lwa4p``, e.g.
         ``config/lwa4p_nominal.yaml``, or its dict) applied over the URDF's values.
+    joints : sequence of str, optional
+        Keep only these joints (any order; the model keeps the URDF's kinematic order); the
+        others (e.g. a gripper's fingers) are locked at their neutral configuration
+        (``pin.buildReducedModel``), so M(q), psi(q, qd) are those of the arm with the
+        locked joints rigid. Default: every movable joint of the URDF.
 
     Returns
     -------
@@ -224,8 +231,20 @@ def load_model(urdf=None, params=None) -> RobotModel:
         pm = pin.buildModelFromUrdf(str(urdf))
     except Exception as e:  # noqa: BLE001  (Pinocchio raises plain exceptions)
         raise ReachsetError(f"{urdf}: cannot load URDF ({str(e).splitlines()[0]})") from e
+    locked = ()
+    if joints is not None:
+        joints = list(joints)
+        every = list(pm.names[1:])
+        unknown = [j for j in joints if j not in every]
+        if unknown:
+            raise ReachsetError(f"{urdf}: no joint {unknown[0]} (its joints: {', '.join(every)})")
+        if len(set(joints)) != len(joints) or not joints:
+            raise ReachsetError(f"{urdf}: joints {joints} must be distinct and not empty")
+        locked = tuple(n for n in every if n not in joints)
+        if locked:
+            pm = pin.buildReducedModel(pm, [pm.getJointId(n) for n in locked], pin.neutral(pm))
     names = list(pm.names[1:])
-    pm.armature[:] = _read_armature(urdf, names)
+    pm.armature[:] = _read_armature(urdf, names, locked)
     fr = Friction(viscous=np.array(pm.damping), coulomb=np.array(pm.friction),
                   offset=np.zeros(pm.nv))
     model = RobotModel(pm, fr, None, source=str(urdf))

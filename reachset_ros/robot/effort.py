@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReachsetError
+from .descriptions import resolve_urdf
 from .dynamics import RobotModel, create_data, inverse_fl, load_model
 
 __all__ = ["EffortInput", "plant_inputs", "load_effort_input"]
@@ -78,11 +79,14 @@ class EffortInput:
         The URDF path.
     nominal : str or None
         The parameter document applied over the URDF (``--nominal``), if any.
+    locked : tuple of str
+        URDF joints locked at their neutral configuration (``--lock-joints``).
     """
 
     model: RobotModel
     urdf: str
     nominal: str | None = None
+    locked: tuple = ()
 
     @property
     def joint_names(self) -> tuple:
@@ -95,18 +99,28 @@ class EffortInput:
     def describe(self) -> dict:
         """Provenance: ``{"source": "effort", "robot": urdf, "nominal": params or None, "joints": [...]}``."""
         return {"source": "effort", "robot": self.urdf, "nominal": self.nominal,
-                "joints": list(self.joint_names)}
+                "joints": list(self.joint_names), "locked_joints": list(self.locked)}
 
 
-def load_effort_input(urdf, nominal=None, joints=None) -> EffortInput:
-    """An :class:`EffortInput` from a URDF and an optional parameter document.
+def load_effort_input(urdf, nominal=None, joints=None, lock=None) -> EffortInput:
+    """An :class:`EffortInput` from a URDF (a path or ``example-robot-data:<path>``,
+    :func:`~reachset_ros.robot.descriptions.resolve_urdf`) and an optional parameter document.
 
-    ``joints``: keep only these joints of the URDF (the others locked at their neutral
-    configuration), when :func:`~reachset_ros.robot.dynamics.load_model` supports it.
+    ``joints``: keep only these joints of the URDF; ``lock``: lock these (e.g. a gripper's
+    fingers that the bag does not carry) at their neutral configuration
+    (:func:`~reachset_ros.robot.dynamics.load_model`); at most one of the two.
     """
     if urdf is None:
         raise ReachsetError("--input effort needs --robot URDF")
-    urdf = Path(urdf).resolve()
-    kw = {} if joints is None else {"joints": list(joints)}
-    model = load_model(urdf, nominal, **kw)
-    return EffortInput(model, str(urdf), None if nominal is None else str(Path(nominal).resolve()))
+    urdf = resolve_urdf(urdf)
+    if lock:
+        if joints is not None:
+            raise ReachsetError("give the joints to keep or those to lock, not both")
+        every = load_model(urdf).joint_names
+        unknown = [j for j in lock if j not in every]
+        if unknown:
+            raise ReachsetError(f"{urdf}: no joint {unknown[0]} to lock (its joints: {', '.join(every)})")
+        joints = [j for j in every if j not in lock]
+    model = load_model(urdf, nominal, joints)
+    locked = tuple(j for j in load_model(urdf).joint_names if j not in model.joint_names) if joints else ()
+    return EffortInput(model, str(urdf), None if nominal is None else str(Path(nominal).resolve()), locked)

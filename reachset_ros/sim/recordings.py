@@ -186,7 +186,8 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
     return Path(path)
 
 
-def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None):
+def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None, faults=(),
+                            log=None):
     """Recordings of the project's simulated LWA-4P (:mod:`reachset_ros.sim.simulator`) in closed loop.
 
     The nodes' code path without ROS: per tick the measurement ``y[k] = q[k-1]`` (one sample
@@ -205,6 +206,20 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
         ``{joint: gains}`` or one gains dict for all joints (default :data:`DEFAULT_GAINS`).
     seed : int
         Seeds the reference, the measurement noise and the model error.
+    sim_config : SimConfig, optional
+        The simulated arm (default :meth:`SimConfig.realistic` of the LWA-4P); any arm's
+        model works (``SimConfig.realistic(robot=rb.load_model(urdf, joints=...))``).
+    reference_config : ReferenceConfig, optional
+        Default: :class:`ReferenceConfig`'s (Table I) for the shipped LWA-4P,
+        :meth:`ReferenceConfig.for_robot` (the URDF's limits) for any other arm.
+    faults : sequence of Fault
+        Injected after the reset (:meth:`SimulatedArm.inject`); their onset stamps go to
+        ``log["fault_onsets"]``.
+    log : dict, optional
+        Filled with arrays of every tick: ``stamps`` (T,), ``q``, ``qd`` (T, n) measured,
+        ``effort`` (T, n) the torque command issued at the tick [N m] (clamped to the
+        URDF's effort limits when the arm clamps, i.e. what the drive executes), and
+        ``fault_onsets``.
 
     Returns
     -------
@@ -215,6 +230,8 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     names = tuple(arm.joint_names)
     n = len(names)
     dt = cfg.dt
+    if reference_config is None and names != tuple(rb.JOINT_NAMES):
+        reference_config = refm.ReferenceConfig.for_robot(cfg.robot)
     gen = refm.ReferenceGenerator(reference_config, seed=seed)
     _, Qd, QDd, QDDd = gen.trajectory(seconds, dt)
     T = len(Qd)
@@ -222,6 +239,7 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     data = rb.create_data(model)
     comps, states, xnames = [], [], []
     m = arm.reset(Qd[0])
+    onsets = [int(arm.inject(f)) for f in faults]
     for j, nm in enumerate(names):
         g = gains.get(nm, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
             gains or DEFAULT_GAINS)
@@ -234,8 +252,11 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     XH = [np.empty((T, len(xn))) for xn in xnames]
     stamps = np.empty(T, np.int64)
     qh, qdh, u = np.zeros(n), np.zeros(n), np.zeros(n)
+    QDm, EFF = np.empty((T, n)), np.empty((T, n))
+    lim = arm.tau_limit                 # the drives' clamp (inf where there is none)
     for k in range(T):
         stamps[k] = m.stamp_ns
+        QDm[k] = m.qd_measured
         y = m.q_measured
         for j in range(n):
             obs, ctrl = comps[j]
@@ -250,7 +271,10 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
             qdh[j] = xh[xnames[j].index("qd")] if "qd" in xnames[j] else 0.0
         Y[k], U[k] = y, u
         tau = rb.feedback_linearization(model, data, qh, qdh, u)
+        EFF[k] = np.clip(tau, -lim, lim)
         m = arm.step(tau)
+    if log is not None:
+        log.update(stamps=stamps.copy(), q=Y.copy(), qd=QDm, effort=EFF, fault_onsets=onsets, names=names)
     out = {}
     for j, nm in enumerate(names):
         out[nm] = Recording(stamps.copy(), Y[:, j].copy(), U[:, j].copy(), XH[j], xnames[j],

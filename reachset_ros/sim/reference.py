@@ -104,6 +104,20 @@ class ReferenceConfig:
     def n(self) -> int:
         return self.q_min.size
 
+    @classmethod
+    def for_robot(cls, model, margin: float = 0.1, qd_max: float = 0.7, qdd_max: float = U_REF, **kw):
+        """Limits of any arm from its model (URDF): the position box is each joint's URDF range
+        shrunk by ``margin`` of its width at both ends; velocities are capped at ``qd_max``
+        and half the URDF velocity limit, accelerations at ``qdd_max`` (the paper's class
+        U_ref, Sec. IV). The shipped LWA-4P's default box (Table I) is :class:`ReferenceConfig`'s."""
+        lo, hi = np.asarray(model.lower, float), np.asarray(model.upper, float)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+            raise ReachsetError("reference: the robot model needs finite position limits on every joint")
+        w = hi - lo
+        vl = np.asarray(model.velocity_limit, float)
+        vmax = np.where(np.isfinite(vl) & (vl > 0), np.minimum(qd_max, 0.5 * vl), qd_max)
+        return cls(q_min=lo + margin * w, q_max=hi - margin * w, qd_max=vmax, qdd_max=qdd_max, **kw)
+
 
 @dataclass(frozen=True)
 class Segment:
