@@ -12,6 +12,8 @@ NODES = {
     "observer_node": "reachset_ros.nodes.observer_node:main",
     "controller_node": "reachset_ros.nodes.controller_node:main",
     "monitor_node": "reachset_ros.nodes.monitor_node:main",
+    "controller_lifecycle_node": "reachset_ros.nodes.controller_lifecycle_node:main",
+    "monitor_lifecycle_node": "reachset_ros.nodes.monitor_lifecycle_node:main",
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
     "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
 }

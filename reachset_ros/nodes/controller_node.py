@@ -86,21 +86,13 @@ class ControllerNode(Node):
         declare_gain_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         self.dt = float(self.get_parameter("dt").value)
-        params = self.get_parameter("robot_params").value or None
-        self.robot = robot.load_model(params=params)
-        self.data = robot.create_data(self.robot)
-        idx = [self.robot.joint_names.index(j) for j in self.joints]
-        self.idx = np.array(idx)
+        self.robot = None            # set by configure()
+        #: why the controller holds although no safe stop is active (the managed variant's
+        #: inactive state, controller_lifecycle_node); None: it tracks
+        self.hold_reason = None
         self.model = None
-        path = self.get_parameter("model_file").value
-        if path:
-            self.model = mdl.load(path)
-        # the start-up configuration passes the same gate as a later change (the pair's
-        # certificate, gain_params.validate_pair): else the node does not start
-        try:
-            self.apply(self.validate(current_values(self), self.model), "start-up")
-        except ReachsetError as e:
-            raise ReachsetError(f"start-up parameters refused: {e}") from None
+        if not self.MANAGED:
+            self.configure()
         self.refs = {}
         self.stop_active = False
         self.stop_known = not self.get_parameter("wait_for_monitor").value
@@ -110,9 +102,6 @@ class ControllerNode(Node):
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
                          "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
                          "torque_beyond_limits": 0}
-        # the drives' torque limits (the URDF's effort limits) of the controlled joints
-        eff = np.array(self.robot.pin_model.effortLimit, dtype=np.float64)[self.idx]
-        self.tau_limit = np.where(np.isfinite(eff) & (eff > 0), eff, np.inf)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
         self.flagged = False             # the previous tick's reference was out of class
@@ -128,6 +117,35 @@ class ControllerNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(0.002, self.on_wait_timer)
         self.add_on_set_parameters_callback(self.on_set_parameters)
+
+    #: True in the managed (lifecycle) variant: configure() runs on the configure transition
+    MANAGED = False
+
+    def configure(self):
+        """Load the robot model and the conformance model and certify the gain pair: the
+        start-up configuration passes the same gate as a later change (the pair's
+        certificate, gain_params.validate_pair), else the node does not start (plain node)
+        or the configure transition fails (managed node). Raises ReachsetError."""
+        params = self.get_parameter("robot_params").value or None
+        rob = robot.load_model(params=params)
+        missing = [j for j in self.joints if j not in rob.joint_names]
+        if missing:
+            raise ReachsetError(f"joint {missing[0]} is not a joint of the robot model")
+        model = None
+        path = self.get_parameter("model_file").value
+        if path:
+            model = mdl.load(path)
+        try:
+            cfg = self.validate(current_values(self), model)
+        except ReachsetError as e:
+            raise ReachsetError(f"start-up parameters refused: {e}") from None
+        self.robot, self.data = rob, robot.create_data(rob)
+        self.idx = np.array([rob.joint_names.index(j) for j in self.joints])
+        self.model = model
+        self.apply(cfg, "start-up")
+        # the drives' torque limits (the URDF's effort limits) of the controlled joints
+        eff = np.array(rob.pin_model.effortLimit, dtype=np.float64)[self.idx]
+        self.tau_limit = np.where(np.isfinite(eff) & (eff > 0), eff, np.inf)
 
     def publish_diagnostics(self):
         """About 1 Hz (and at once when a reference leaves the class or a transient starts):
@@ -336,7 +354,7 @@ class ControllerNode(Node):
         two come from different nodes, in either order). An estimate whose reference has not
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
-        braking = self.stop_active or not self.stop_known or self.own_stop is not None
+        braking = self.stop_active or not self.stop_known or self.own_stop is not None or self.hold_reason is not None
         if not late and not braking and stamp not in self.refs:
             if self.waiting is not None and self.waiting[0] < stamp:
                 _, old, _ = self.waiting
@@ -365,7 +383,7 @@ class ControllerNode(Node):
             if self.stop is None:
                 self.stop = StopState(len(self.joints))
             before = int(self.stop.engaged.sum())
-            if self.stop_known and self.stop_active or self.own_stop is not None:
+            if self.stop_known and self.stop_active or self.own_stop is not None or self.hold_reason is not None:
                 u, _ = stop_tick(self.policy(), self.stop, stamp, q, qd, u_max)
             else:   # waiting for the monitor's state: hold with the braking law, no brakes
                 u, _ = stop_tick(StopPolicy(category=2), self.stop, stamp, q, qd, u_max)

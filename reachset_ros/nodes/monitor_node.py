@@ -254,6 +254,10 @@ class MonitorCore:
 class MonitorNode(Node):
     """ROS adapter of :class:`MonitorCore`."""
 
+    #: True in the managed (lifecycle) variant (monitor_lifecycle_node): the model is loaded
+    #: on the configure transition and the initial safe-stop state is the variant's
+    MANAGED = False
+
     def __init__(self):
         super().__init__("monitor_node")
         self.declare_parameter("model_file", "", desc("conformance model YAML (identify/synthesize output)"))
@@ -313,12 +317,14 @@ class MonitorNode(Node):
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         path = self.get_parameter("model_file").value
-        if path:
+        if path and not self.MANAGED:           # the managed variant loads it on configure
             ok, why = self.load(path)
             if not ok:
                 self.get_logger().error(why)
         elif self.effort_error:
             self.get_logger().error(self.effort_error + " (no model can be loaded until it is fixed)")
+        if self.MANAGED:
+            return
         # the initial state, latched: a controller waiting for the monitor may start
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()

@@ -1,0 +1,163 @@
+"""Issue 15.8: managed (lifecycle) variants of the monitor and the controller, over real DDS.
+
+Transitions are driven through the standard lifecycle services (``/<node>/change_state``,
+``/<node>/get_state``, lifecycle_msgs), as ``ros2 lifecycle set`` does.
+"""
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from reachset_msgs.msg import BrakeCommand, ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
+from sensor_msgs.msg import JointState
+
+from helpers import JOINTS, PUB_QOS, Recorder, stream, write_model
+from reachset_ros import launch
+from reachset_ros.nodes.common import SAFE_STOP_QOS, to_stamp
+
+
+def call(node, srv_type, name, req, timeout=20.0):
+    cli = node.create_client(srv_type, name)
+    try:
+        assert cli.wait_for_service(timeout_sec=timeout), f"{name} not available"
+        fut = cli.call_async(req)
+        rclpy.spin_until_future_complete(node, fut, timeout_sec=timeout)
+        assert fut.done(), f"{name} did not answer"
+        return fut.result()
+    finally:
+        node.destroy_client(cli)
+
+
+def state(node, target):
+    return call(node, GetState, f"/{target}/get_state", GetState.Request()).current_state.id
+
+
+def transition(node, target, tid):
+    req = ChangeState.Request()
+    req.transition.id = tid
+    return call(node, ChangeState, f"/{target}/change_state", req).success
+
+
+def test_monitor_lifecycle(ros, tmp_path):
+    """unconfigured: stop latched, nothing checked; a missing model fails configure (stays
+    unconfigured); configure + activate: the stop is released and every tick is checked;
+    deactivate: the stop is latched again and checking stops."""
+    rec = Recorder("lc_mon_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop})
+    js_pub = ros.create_publisher(JointState, "joint_states", PUB_QOS)
+    pi_pub = ros.create_publisher(PlantInput, "plant_input", PUB_QOS)
+    Y, U = stream(1200, seed=3)
+    t0 = 10**18
+
+    def send(lo, hi):
+        for k in range(lo, hi):
+            m = JointState(name=JOINTS, position=[float(v) for v in Y[k]])
+            p = PlantInput(name=JOINTS, acceleration=[float(v) for v in U[k]])
+            to_stamp(m.header.stamp, t0 + 4_000_000 * k)
+            to_stamp(p.header.stamp, t0 + 4_000_000 * k)
+            js_pub.publish(m)
+            pi_pub.publish(p)
+            time.sleep(0.002)
+
+    bad = launch.start("monitor_lifecycle_node", {"model_file": str(tmp_path / "missing.yaml"),
+                                                  "window_dir": str(tmp_path / "w")}, tmp_path, node_name="bad_mon")
+    mon = launch.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
+                                                  "window_dir": str(tmp_path / "w")}, tmp_path,
+                       node_name="monitor_node")
+    try:
+        assert state(ros, "bad_mon") == State.PRIMARY_STATE_UNCONFIGURED
+        assert not transition(ros, "bad_mon", Transition.TRANSITION_CONFIGURE)
+        assert state(ros, "bad_mon") == State.PRIMARY_STATE_UNCONFIGURED
+        assert "configure failed" in bad.log.read_text() and "missing.yaml" in bad.log.read_text()
+
+        assert state(ros, "monitor_node") == State.PRIMARY_STATE_UNCONFIGURED
+        stops = rec.msgs["safe_stop"]
+        assert rec.wait(lambda: any(m.active and m.kind == "manual" for _, m in stops), 20)
+        send(0, 100)                                     # unconfigured: nothing is checked
+        time.sleep(0.5)
+        assert not rec.msgs["conformance/status"]
+        assert transition(ros, "monitor_node", Transition.TRANSITION_CONFIGURE)
+        assert state(ros, "monitor_node") == State.PRIMARY_STATE_INACTIVE
+        assert transition(ros, "monitor_node", Transition.TRANSITION_ACTIVATE)
+        assert state(ros, "monitor_node") == State.PRIMARY_STATE_ACTIVE
+        assert rec.wait(lambda: not stops[-1][1].active, 20)       # the lifecycle's stop is released
+        send(100, 700)
+        status = rec.msgs["conformance/status"]
+        assert rec.wait(lambda: len(status) >= 590, 30), len(status)
+        assert all(min(m.margin) >= 0 for _, m in status)            # conformant data: no violation
+        assert not any(m.active for _, m in stops[-1:])
+        assert transition(ros, "monitor_node", Transition.TRANSITION_DEACTIVATE)
+        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "manual", 20)
+        n = len(status)
+        send(700, 800)
+        time.sleep(0.5)
+        assert len(status) == n                                      # inactive: nothing checked
+    finally:
+        launch.stop([bad, mon])
+        rec.close()
+
+
+def test_controller_lifecycle(ros, tmp_path):
+    """unconfigured: nothing is commanded; configure with gains that the certificate refuses
+    fails (stays unconfigured); configure: inactive holds the arm with the stop policy
+    (brakes engaged at rest); activate: tracking, brakes released, the certified law;
+    deactivate: brakes again."""
+    rec = Recorder("lc_ctl_listener", {"plant_input": PlantInput, "brake_command": BrakeCommand})
+    est_pub = ros.create_publisher(JointEstimate, "observer/estimate", PUB_QOS)
+    ref_pub = ros.create_publisher(JointReference, "reference", PUB_QOS)
+    safe_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+    k = [0]
+
+    def tick(n=25):
+        for _ in range(n):
+            k[0] += 1
+            st = 10**18 + k[0] * 4_000_000
+            e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            r = JointReference(name=JOINTS, position=[0.3, 0.1], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])
+            to_stamp(e.header.stamp, st)
+            to_stamp(r.header.stamp, st)
+            ref_pub.publish(r)
+            est_pub.publish(e)
+            time.sleep(0.004)
+
+    params = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
+              "stop_category": 1}
+    bad = launch.start("controller_lifecycle_node", {**params, "allow_uncertified": False}, tmp_path,
+                       node_name="bad_ctl")
+    ctl = launch.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
+    try:
+        assert state(ros, "bad_ctl") == State.PRIMARY_STATE_UNCONFIGURED
+        assert not transition(ros, "bad_ctl", Transition.TRANSITION_CONFIGURE)
+        assert state(ros, "bad_ctl") == State.PRIMARY_STATE_UNCONFIGURED
+        assert "configure failed" in bad.log.read_text()
+        launch.stop([bad])
+
+        assert state(ros, "controller_node") == State.PRIMARY_STATE_UNCONFIGURED
+        tick()
+        time.sleep(0.3)
+        assert not rec.msgs["plant_input"]                            # unconfigured: nothing commanded
+        safe = SafeStop(active=False, kind="reset", reason="test: no stop")
+        safe_pub.publish(safe)
+        assert transition(ros, "controller_node", Transition.TRANSITION_CONFIGURE)
+        assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
+        tick()
+        brakes = rec.msgs["brake_command"]
+        assert rec.wait(lambda: brakes and all(brakes[-1][1].engage), 20)    # inactive: held, brakes on
+        inputs = rec.msgs["plant_input"]
+        assert all(np.allclose(m.acceleration, 0.0, atol=1e-9) for _, m in inputs)
+        assert transition(ros, "controller_node", Transition.TRANSITION_ACTIVATE)
+        n = len(inputs)
+        tick(50)
+        assert rec.wait(lambda: len(inputs) > n + 10, 20)
+        _, last = inputs[-1]
+        # the certified law (omega 10, zeta 1: 100 (q_d - q) + 20 (qd_d - qd)) towards the reference
+        assert last.acceleration == pytest.approx([100.0 * 0.2, 100.0 * 0.3], abs=1e-9)
+        assert not any(brakes[-1][1].engage)                                 # active: released
+        assert transition(ros, "controller_node", Transition.TRANSITION_DEACTIVATE)
+        tick()
+        assert rec.wait(lambda: all(brakes[-1][1].engage), 20)              # deactivate: brakes and hold
+        assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
+    finally:
+        launch.stop([bad, ctl])
+        rec.close()
