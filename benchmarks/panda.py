@@ -26,7 +26,8 @@ REPO = Path(__file__).resolve().parent.parent
 ROBOT = "example-robot-data:panda_description/urdf/panda.urdf"
 ARM = ",".join(f"panda_joint{i}" for i in range(1, 8))
 EFF = ["--input", "effort", "--robot", ROBOT, "--lock-joints", "panda_finger_joint1,panda_finger_joint2"]
-FAULTS = [("payload", None, 3.0), ("torque", "panda_joint2", 5.0), ("acceleration", "panda_joint4", 5.0),
+FAULTS = [("payload", None, 3.0), ("payload", None, 10.0), ("torque", "panda_joint2", 5.0),
+          ("acceleration", "panda_joint4", 5.0), ("acceleration", "panda_joint4", 20.0),
           ("bias", "panda_joint1", 0.01), ("frozen", "panda_joint3", None), ("nan", "panda_joint5", 1)]
 VERBOSE = False
 
@@ -85,8 +86,8 @@ def main():
             extra = ([] if joint is None else ["--fault-joint", joint]) + ([] if mag is None else
                                                                              ["--fault-magnitude", mag])
             f = cli("simulate", "--robot", ROBOT, "--joints", ARM, "--seconds", 20, "--seed", 21 + i, "--out",
-                    d / kind, "--fault", kind, "--fault-at", 10, *extra, "--json")
-            c = cli("check", d / kind, "--model", d / "model.yaml", "--json", *EFF)
+                    d / f"{kind}{i}", "--fault", kind, "--fault-at", 10, *extra, "--json")
+            c = cli("check", d / f"{kind}{i}", "--model", d / "model.yaml", "--json", *EFF)
             onset = f["fault"]["onset_ns"]
             firsts = [j["first_violation_ns"] for j in c["joints"].values() if j["first_violation_ns"]]
             first = min(firsts) if firsts else None
