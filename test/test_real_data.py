@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import yaml
 
 from reachset_ros.commands.identify import DEFAULT_GRID
@@ -52,40 +53,64 @@ def test_calibrated_model_from_the_training_runs_is_conformant_on_the_held_out_r
 
 
 def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_needs(lwa4p_dir, tmp_path):
-    """``--calibrate K`` recomputed independently: run i (stamp order) is in fold i mod K; for
-    each fold, sets identified on a bag of the other runs and checked on a bag of the fold's
-    runs with the reported per-joint inflation are conformant, and for every joint with a
-    positive inflation some fold is violated at the next smaller grid value."""
+    """``--calibrate K`` recomputed independently, with separate bags instead of segment
+    subsets: run i (stamp order) is in fold i mod K; for each fold, sets identified on a bag
+    of the other runs and checked (``reachset check``'s function) on a bag of the fold's runs
+    with the reported per-joint inflation are conformant, and every joint with a positive
+    inflation has a fold violated at the next smaller grid value."""
+    from reachset_ros import bags
+    from reachset_ros.commands.identify import _joint_sets, identify_series
+    from reachset_ros.conformance.estimators import Estimator
+    from reachset_ros.conformance.theorem1 import Theorem1, check
+    from reachset_ros.systems.plant import lwa4p_joint_plant
     runs = [1, 2, 3, 5, 6, 7]
     K, H = 3, 40
-    cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, runs)), "--out", tmp_path / "all")
+    lwa4p.import_runs(lwa4p_dir, runs, tmp_path / "all")
     ident = cli("identify", tmp_path / "all", "--horizon", H, "--calibrate", K, "--json")
     grid = [0.0, *DEFAULT_GRID]
     infl = {n: j["inflation"] for n, j in ident["joints"].items()}
-    needed = {n: False for n in infl}
+    assert ident["inflation"] == max(infl.values())
+    plant, est = lwa4p_joint_plant(), Estimator.named("fd", lwa4p_joint_plant())
+    thm = Theorem1.build(plant, H)
+    needed = {n: v == 0.0 for n, v in infl.items()}
     for f in range(K):
         fold = [r for i, r in enumerate(runs) if i % K == f]
         rest = [r for i, r in enumerate(runs) if i % K != f]
-        cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, fold)), "--out", tmp_path / f"f{f}")
-        cli("import-lwa4p", lwa4p_dir, "--runs", ",".join(map(str, rest)), "--out", tmp_path / f"r{f}")
-        for n, j in ident["joints"].items():
+        lwa4p.import_runs(lwa4p_dir, fold, tmp_path / f"f{f}")
+        lwa4p.import_runs(lwa4p_dir, rest, tmp_path / f"r{f}")
+        for j in ident["joints"].values():
             assert j["calibration"]["folds"][f]["segments"] == len(fold)      # whole runs, none split
-        for value in sorted(set(infl.values()) | {g for v in infl.values() for g in grid if g < v}):
-            m = tmp_path / f"m{f}_{value}.yaml"
-            cli("identify", tmp_path / f"r{f}", "--horizon", H, "--inflation", value, "--out", m)
-            chk = cli("check", tmp_path / f"f{f}", "--model", m, "--json")
-            for n, v in infl.items():
-                if value == v:
-                    assert chk["joints"][n]["violations"] == 0, (f, n, v)
-                below = [g for g in grid if g < v]
-                if below and value == below[-1] and chk["joints"][n]["violations"] > 0:
-                    needed[n] = True
-    for n, v in infl.items():
-        assert v == 0.0 or needed[n], (n, v)
+        train, _ = bags.read_joint_series([tmp_path / f"r{f}"])
+        held, _ = bags.read_joint_series([tmp_path / f"f{f}"])
+        res, _ = identify_series(plant, est, train, H, settle=False)
+        for n, v in infl.items():
+            js = _joint_sets(res[n][0], res[n][1], H)
+            s = held[n]
+            assert check(plant, thm, est, js.xi(v), s.y, s.u, s.segments, H).violations == 0, (f, n, v)
+            below = [g for g in grid if g < v]
+            if below and check(plant, thm, est, js.xi(below[-1]), s.y, s.u, s.segments, H).violations > 0:
+                needed[n] = True
+    assert all(needed.values()), (infl, needed)
     for bad in (["--calibrate", "1"], ["--calibrate", "3", "--inflation", "0.1"]):
         p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", str(tmp_path / "all"), *bad],
                            capture_output=True, text=True)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "--calibrate" in p.stderr
+
+
+def test_a_single_recording_is_split_into_blocks_for_the_folds(lwa4p_dir):
+    """With fewer runs than folds the longest run is halved until there are K blocks; the
+    segments are cut at the block boundaries (a test case is dropped there, never split)."""
+    from reachset_ros.bags.series import JointSeries
+    from reachset_ros.conformance.calibration import segment_folds
+    st = 10**18 + 4_000_000 * np.arange(1000)
+    s = JointSeries("j", st, np.zeros(1000), np.zeros(1000), ((0, 1000),), 0.004)
+    segs, folds, n_blocks, n_runs = segment_folds(s, 4, 0.004)
+    assert (n_runs, n_blocks) == (1, 4)
+    assert segs == [(0, 250), (250, 500), (500, 750), (750, 1000)] and folds == [0, 1, 2, 3]
+    st2 = np.concatenate([st[:600], st[600:] + 10**9])           # two recordings, a pause
+    s2 = JointSeries("j", st2, np.zeros(1000), np.zeros(1000), ((0, 600), (600, 1000)), 0.004)
+    segs, folds, n_blocks, n_runs = segment_folds(s2, 2, 0.004)
+    assert (n_runs, n_blocks) == (2, 2) and segs == [(0, 600), (600, 1000)] and folds == [0, 1]
 
 
 def test_held_out_runs_are_the_protocols(lwa4p_dir):
