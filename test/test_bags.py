@@ -222,16 +222,27 @@ def rosbags_reads(monkeypatch):
     return calls
 
 
-@pytest.mark.parametrize("kind", ["mcap", "sqlite3", "mcap-zstd-chunks", "message-compressed"])
-def test_reader_equals_rosbags_on_messy_bags(tmp_path, kind, rosbags_reads):
-    path = tmp_path / "b"
-    stream = messy_stream()
+def write_layout(path, stream, kind):
+    """``stream`` as a bag in one of the real layouts: written by rosbags (``mcap``,
+    ``sqlite3``, zstd file mode ``mcap-zstd-chunks``, zstd message mode ``message-compressed``)
+    or by the mcap library (summary without Channel/Schema records ``mcap-lib-no-repeat``; no
+    index at all ``mcap-lib-unindexed``, messages then in log-time order)."""
     if kind == "mcap-zstd-chunks":
         write_rosbags(path, stream, compression=CompressionMode.STORAGE)
     elif kind == "message-compressed":
         write_rosbags(path, stream, compression=CompressionMode.MESSAGE)
+    elif kind == "mcap-lib-no-repeat":
+        write_mcap_lib(path, stream, "ZSTD", "ALL", repeat=False)
+    elif kind == "mcap-lib-unindexed":
+        write_mcap_lib(path, sorted(stream, key=lambda s: s[0]), "NONE", "NONE")
     else:
         write_rosbags(path, stream, storage=kind)
+
+
+@pytest.mark.parametrize("kind", ["mcap", "sqlite3", "mcap-zstd-chunks", "message-compressed"])
+def test_reader_equals_rosbags_on_messy_bags(tmp_path, kind, rosbags_reads):
+    path = tmp_path / "b"
+    write_layout(path, messy_stream(), kind)
     assert_columns_equal(bags.read_topics([path]), reference_columns(path))
     assert len(rosbags_reads) == (kind in ("sqlite3", "message-compressed"))
 
@@ -263,18 +274,7 @@ def test_several_arrays_of_a_topic_in_one_pass_equal_rosbags(tmp_path, kind):
     bags written by rosbags (both storages, both compression modes) and by the mcap library
     (summary without channels; no index at all)."""
     path = tmp_path / "b"
-    stream = messy_stream()
-    if kind == "mcap-zstd-chunks":
-        write_rosbags(path, stream, compression=CompressionMode.STORAGE)
-    elif kind == "message-compressed":
-        write_rosbags(path, stream, compression=CompressionMode.MESSAGE)
-    elif kind == "mcap-lib-no-repeat":
-        write_mcap_lib(path, stream, "ZSTD", "ALL", repeat=False)
-    elif kind == "mcap-lib-unindexed":
-        stream.sort(key=lambda s: s[0])
-        write_mcap_lib(path, stream, "NONE", "NONE")
-    else:
-        write_rosbags(path, stream, storage=kind)
+    write_layout(path, messy_stream(), kind)
     fields = ("position", "velocity", "effort")
     got = bags.series.read_fields([path], {f: (bags.JOINT_STATES, f) for f in fields})
     for f in fields:

@@ -52,17 +52,21 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
         if self.active:
             super().watchdog()
 
-    def lifecycle_stop(self, why):
-        """Latch the lifecycle's own safe stop (the controller brakes and holds)."""
-        if self.stop_active:
-            return
-        self.stop_active = True
+    def publish_stop_state(self, active, kind, why):
+        """Publish (latched) the lifecycle's safe-stop state."""
+        self.stop_active = active
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()
-        m.active, m.kind, m.reason = True, "manual", f"{LIFECYCLE_STOP} {why}"
+        m.active, m.kind, m.reason = active, kind, f"{LIFECYCLE_STOP} {why}"
         self.stop_msg = m
         self.stop_pub.publish(m)
-        self.get_logger().warning(f"safe stop latched: {m.reason}")
+
+    def lifecycle_stop(self, why):
+        """Latch the lifecycle's own safe stop (the controller brakes and holds); a stop
+        already latched (by a check) stays as it is."""
+        if not self.stop_active:
+            self.publish_stop_state(True, "manual", why)
+            self.get_logger().warning(f"safe stop latched: {self.stop_msg.reason}")
 
     # -- transitions -------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -83,12 +87,7 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
         self.first_rx_wall.clear()
         self.active = True
         if self.stop_active and self.stop_msg is not None and self.stop_msg.reason.startswith(LIFECYCLE_STOP):
-            self.stop_active = False
-            m = SafeStop()
-            m.header.stamp = self.get_clock().now().to_msg()
-            m.active, m.kind, m.reason = False, "reset", f"{LIFECYCLE_STOP} active: checking"
-            self.stop_msg = m
-            self.stop_pub.publish(m)
+            self.publish_stop_state(False, "reset", "active: checking")
             self.get_logger().info("active: checking; the lifecycle's safe stop is released")
         return TransitionCallbackReturn.SUCCESS
 
