@@ -105,3 +105,18 @@ def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
     stop = bus.active_stops()[0]
     assert stop.kind == "violation" and stamp_ns(stop.header.stamp) == first
     assert first >= fault["fault"]["onset_ns"]
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--seconds", "-1"], ["--seconds must be > 0"]),
+    (["--joints", "panda_joint1,elbow"], ["no joint elbow", "panda.urdf"]),
+    (["--fault-at", "2"], ["--fault-at needs --fault"]),
+    (["--fault", "bias", "--fault-joint", "panda_joint9"], ["--fault-joint: no joint panda_joint9"]),
+])
+def test_simulate_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, words):
+    base = ["--robot", ROBOT, "--seconds", "1", "--out", str(tmp_path / "b")]
+    p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "simulate", *base, *args], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert all(w in p.stderr for w in words), p.stderr
+    assert not any(tmp_path.iterdir())
