@@ -246,7 +246,32 @@ def test_iterative_procedure_with_a_simulated_robot():
     assert len(calls) == 2 and calls[0]["j"]["omega"] == hist[0]["results"]["j"].params["omega"]
     final = hist[-1]["results"]["j"]
     assert final.conformant and final.ru_inside and final.mode == "reidentify"
-    assert final.params["omega"] == hist[1]["results"]["j"].params["omega"]
+    kept = hist[int(hist[-1]["kept"]["j"].split()[-1]) - 1]["results"]["j"]      # the better synthesis
+    assert kept.re_norm == min(h["results"]["j"].re_norm for h in hist[:2])
+    assert final.params["omega"] == kept.params["omega"]
+
+
+def test_iterative_procedure_keeps_the_better_iteration():
+    """Issue 16.4: when the second iteration's data are worse (larger disturbances), its
+    guaranteed ||R*_e|| is larger; the first synthesis is kept, the re-identification runs with
+    its gains, and the history says so (before: the last synthesis's gains were used)."""
+    calls = []
+
+    def record(gains):
+        calls.append(gains)
+        sc = sr.Scenario(a1=0.01, a2=3.0) if len(calls) == 1 else sr.Scenario()
+        return sr.recordings_series(sr.simulate_recordings(["j"], 2500, seed=30 + len(calls), gains=gains,
+                                                           scenarios={"j": sc}))[0]
+
+    series = sr.recordings_series(sr.simulate_recordings(["j"], 2500, seed=30))[0]
+    space = sy.SearchSpace.from_config(sy.load_config(), "hg")
+    hist = sy.iterate(record, series, space, iterations=2, search=SEARCH,
+                      reference_class=sy.ReferenceClass(2.0, 0.05))
+    first, second = hist[0]["results"]["j"], hist[1]["results"]["j"]
+    assert second.re_norm > first.re_norm                       # the worse data give a worse guarantee
+    assert hist[-1]["kept"] == {"j": "synthesis 1"}
+    assert calls[1]["j"]["omega"] == first.params["omega"]      # recorded again with the kept gains
+    assert hist[-1]["results"]["j"].params["omega"] == first.params["omega"]
 
 
 def test_iterative_procedure_with_the_projects_simulated_arm():

@@ -44,14 +44,21 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
        :func:`reachset_ros.sim.recordings.recordings_series` of
        :func:`reachset_ros.sim.recordings.simulate_arm_recordings`; the simulator or the node
        suite drives the robot);
-    3. repeat 1-2 ``iterations`` times in total, each synthesis seeded with the previous gains;
+    3. repeat 1-2 ``iterations`` times in total, each synthesis seeded with the kept gains;
        then, if ``final_reidentify``, record once more and re-identify the sets with the
        controller fixed.
+
+    No drift to worse gains: per joint the synthesis with the smallest guaranteed ‖R*_e‖ so
+    far is *kept* (each ‖R*_e‖ is guaranteed for the data it was synthesised on); the next
+    recording, the next synthesis's seed and the re-identification use the kept gains.
 
     Returns
     -------
     list of dict
-        One ``{"step": ..., "results": {joint: JointResult}}`` per synthesis/re-identification.
+        One ``{"step": ..., "results": {joint: JointResult}}`` per synthesis/re-identification;
+        the last entry also has ``"kept": {joint: step}``, the synthesis whose gains were kept
+        (an entry ``{"step": "kept", ...}`` with the kept results when ``final_reidentify`` is
+        false).
     """
     plant = plant or lwa4p_joint_plant(dt=dt)
     estimator = estimator or Estimator("fd")
@@ -60,6 +67,7 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
     history = []
     data, refs = _as_series(series, dt)
     prev = None
+    best = {}                      # joint -> (guaranteed ||R*_e||, step, JointResult)
     if not isinstance(series, (dict, tuple)) and not data:
         raise ReachsetError("iterate: no data")
     for it in range(int(iterations)):
@@ -67,15 +75,22 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
                                      thm=thm, reference_class=reference_class)
         seeds = {n: [r.params] for n, r in prev.items()} if prev else None
         res = synthesize(probs, space, "combined", search, seed, seeds, with_separate=(it == 0))
-        history.append({"step": f"synthesis {it + 1}", "results": res})
-        prev = res
+        step = f"synthesis {it + 1}"
+        history.append({"step": step, "results": res})
+        for n, r in res.items():
+            if n not in best or r.re_norm < best[n][0]:
+                best[n] = (float(r.re_norm), step, r)
+        prev = {n: b[2] for n, b in best.items()}
         if it + 1 < iterations or final_reidentify:
-            data, refs = _as_series(record({n: r.gains() for n, r in res.items()}), dt)
+            data, refs = _as_series(record({n: r.gains() for n, r in prev.items()}), dt)
+    kept = {n: b[1] for n, b in best.items()}
     if final_reidentify and prev:
         probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
                                      thm=thm, reference_class=reference_class)
         res = synthesize(probs, space, "reidentify", gains={n: r.gains() for n, r in prev.items()})
-        history.append({"step": "re-identification", "results": res})
+        history.append({"step": "re-identification", "results": res, "kept": kept})
+    elif prev:
+        history.append({"step": "kept", "results": prev, "kept": kept})
     return history
 
 
