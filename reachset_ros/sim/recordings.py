@@ -21,6 +21,7 @@ from .. import robot as rb
 from ..bags import JointSeries
 from ..bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
 from ..bags.references import Reference
+from ..errors import ReachsetError
 from ..synthesis.config import components_from_gains
 from ..synthesis.reference_error import reference_state, simulate_closed_loop
 from ..systems.closedloop import closed_loop_tick
@@ -187,7 +188,7 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
 
 
 def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None, faults=(),
-                            log=None):
+                            log=None, reference=None):
     """Recordings of the project's simulated LWA-4P (:mod:`reachset_ros.sim.simulator`) in closed loop.
 
     The nodes' code path without ROS: per tick the measurement ``y[k] = q[k-1]`` (one sample
@@ -215,6 +216,9 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     faults : sequence of Fault
         Injected after the reset (:meth:`SimulatedArm.inject`); their onset stamps go to
         ``log["fault_onsets"]``.
+    reference : (Qd, QDd, QDDd), optional
+        An explicit reference, arrays (T, n) at dt (e.g. a real recording's trajectory);
+        ``seconds`` and ``reference_config`` are then not used.
     log : dict, optional
         Filled with arrays of every tick: ``stamps`` (T,), ``q``, ``qd`` (T, n) measured,
         ``effort`` (T, n) the torque command issued at the tick [N m] (clamped to the
@@ -232,8 +236,13 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     dt = cfg.dt
     if reference_config is None and names != tuple(rb.JOINT_NAMES):
         reference_config = refm.ReferenceConfig.for_robot(cfg.robot)
-    gen = refm.ReferenceGenerator(reference_config, seed=seed)
-    _, Qd, QDd, QDDd = gen.trajectory(seconds, dt)
+    if reference is None:
+        gen = refm.ReferenceGenerator(reference_config, seed=seed)
+        _, Qd, QDd, QDDd = gen.trajectory(seconds, dt)
+    else:
+        Qd, QDd, QDDd = (np.asarray(a, dtype=np.float64).reshape(-1, n) for a in reference)
+        if not (len(Qd) == len(QDd) == len(QDDd) > 1):
+            raise ReachsetError("simulate_arm_recordings: reference arrays of different lengths")
     T = len(Qd)
     model = cfg.robot
     data = rb.create_data(model)

@@ -77,9 +77,9 @@ class SimConfig:
         RK4 steps per period (4: 1 kHz physics); more if stability requires.
     quantization : float
         Encoder resolution [rad] (0: off).
-    position_noise, velocity_noise : float
-        Standard deviation of Gaussian measurement noise, clipped at +-3 sigma so that it is
-        bounded [rad], [rad/s] (0: off).
+    position_noise, velocity_noise : float or tuple of n floats
+        Standard deviation of Gaussian measurement noise (one for all joints, or one per
+        joint), clipped at +-3 sigma so that it is bounded [rad], [rad/s] (0: off).
     start_ns : int
         Stamp of tick 0.
     hard_stops : bool
@@ -96,8 +96,8 @@ class SimConfig:
     dt: float = DT
     substeps: int = 4
     quantization: float = 3.5e-5
-    position_noise: float = 0.0
-    velocity_noise: float = 0.0
+    position_noise: object = 0.0
+    velocity_noise: object = 0.0
     start_ns: int = 1_000_000_000_000_000_000
     hard_stops: bool = True
     torque_limits: bool = True
@@ -107,8 +107,11 @@ class SimConfig:
         if not self.dt > 0 or self.substeps < 1:
             raise ReachsetError("simulator: dt must be > 0 and substeps >= 1")
         for f in ("quantization", "position_noise", "velocity_noise"):
-            if getattr(self, f) < 0:
-                raise ReachsetError(f"simulator: {f} must be >= 0")
+            v = np.asarray(getattr(self, f), dtype=np.float64)
+            if not np.all(np.isfinite(v)) or np.any(v < 0):
+                raise ReachsetError(f"simulator: {f} must be finite and >= 0")
+            if f != "quantization" and v.ndim and v.shape != (self.robot.nv,):
+                raise ReachsetError(f"simulator: {f} needs one value or {self.robot.nv} (one per joint)")
         if self.brake_torque is not None:
             b = np.asarray(self.brake_torque, dtype=np.float64)
             if b.shape != (self.robot.nv,) or not np.all(np.isfinite(b)) or np.any(b <= 0):
@@ -549,7 +552,7 @@ class SimulatedArm:
 
     def _noise(self, st, std):
         z = st.rng.standard_normal(self.nv)          # drawn every tick: same stream always
-        return std * np.clip(z, -3.0, 3.0)
+        return np.asarray(std, dtype=np.float64) * np.clip(z, -3.0, 3.0)
 
     def _measure(self) -> Measurement:
         st, cfg = self.state, self.config
