@@ -282,3 +282,21 @@ def test_cleared_payload_restores_the_true_robot(model):
     assert arm.clear_faults() == 1 and arm.true_robot is base
     arm.step(np.zeros(6))
     assert arm.true_robot is base and arm.state.faults == []
+
+
+def test_per_joint_measurement_noise(model):
+    """Issue 16.2: the calibrated arm has one noise level per joint; a joint with zero noise
+    measures the quantized truth, a wrong-length tuple is refused."""
+    noise = (0.0, 1e-3, 0.0, 0.0, 0.0, 0.0)
+    arm = sim.SimulatedArm(sim.SimConfig(robot=model, position_noise=noise, quantization=0.0), seed=1)
+    m0 = arm.reset(np.full(6, 0.1))
+    ms = [arm.step(np.zeros(6)) for _ in range(50)]
+    truth = [arm.state.q_prev.copy()]
+    dev = np.array([m.q_measured for m in ms[-1:]]) - truth[0]
+    assert abs(dev[0, 1]) <= 3e-3 and np.all(dev[0, [0, 2, 3, 4, 5]] == 0.0)
+    assert np.any(np.array([m.q_measured[1] for m in ms]) != np.array([m.q_measured[1] for m in ms])[0])
+    with pytest.raises(ReachsetError, match="one per joint"):
+        sim.SimConfig(robot=model, position_noise=(1e-5, 1e-5))
+    with pytest.raises(ReachsetError, match=">= 0"):
+        sim.SimConfig(robot=model, position_noise=(-1e-5,) * 6)
+    assert m0.valid

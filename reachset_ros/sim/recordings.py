@@ -247,7 +247,8 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     model = cfg.robot
     data = rb.create_data(model)
     comps, states, xnames = [], [], []
-    m = arm.reset(Qd[0])
+    # an explicit reference (a real run) may start moving: the arm starts on it, not at rest
+    m = arm.reset(Qd[0]) if reference is None else arm.reset(Qd[0], QDd[0])
     onsets = [int(arm.inject(f)) for f in faults]
     for j, nm in enumerate(names):
         g = gains.get(nm, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (

@@ -133,6 +133,30 @@ class SimConfig:
         kw.setdefault("velocity_noise", 2e-3)
         return cls(robot=robot or load_model(), **kw)
 
+    #: Calibrated to the real LWA-4P (benchmarks/calibrate_sim.py --runs train --iterate 5;
+    #: docs/robot.md): per joint the truth's friction is (1 + f_j) times the nominal model's
+    #: (viscous and Coulomb), position noise sigma_j (velocity noise 20 sigma_j), 3.5e-5 rad encoder.
+    CALIBRATED_FRICTION_ERROR = (0.171, 0.314, 0.171, 0.204, 0.095, 0.114)
+    CALIBRATED_POSITION_NOISE = (2.0e-5, 1.6e-5, 3.2e-5, 2.8e-5, 3.1e-5, 2.8e-5)
+
+    @classmethod
+    def calibrated(cls, **kw) -> "SimConfig":
+        """The simulated LWA-4P calibrated to the real one (issue 16.2): the nominal model is
+        the identified ``config/lwa4p_nominal.yaml``; the truth differs from it by a friction
+        error per joint, and measurement noise per joint, chosen so that the sets identified
+        from simulated runs of the real recordings' own trajectories are within a factor 1.5
+        of those identified from the real runs (Theorem 1, k* = 125, estimator fd): measured
+        1.11 on the 75 training runs it was fitted on, 1.35 on the 25 held-out runs
+        (docs/robot.md)."""
+        from ..robot.lwa4p import load_nominal      # the shipped identified model
+        f = np.asarray(cls.CALIBRATED_FRICTION_ERROR)
+        kw.setdefault("robot", load_nominal())
+        kw.setdefault("model_error", ModelError(viscous_scale=1 + f, coulomb_scale=1 + f, seed=0))
+        kw.setdefault("position_noise", cls.CALIBRATED_POSITION_NOISE)
+        kw.setdefault("velocity_noise", tuple(20 * x for x in cls.CALIBRATED_POSITION_NOISE))
+        kw.setdefault("quantization", 3.5e-5)
+        return cls(**kw)
+
     def true_robot(self) -> RobotModel:
         """The simulated ("true") robot."""
         truth = perturb(self.robot, self.model_error)
