@@ -6,7 +6,9 @@ them, so every tick checks k*+1 test cases per joint. Two timings: ``Monitor.tic
 and the whole per-tick check of the monitor node's core (the tick plus the coverage
 accounting of :class:`~reachset_ros.conformance.monitor.CoverageWatch`: how far the test
 cases reached, issue 14.1), and the monitor node's whole per-tick work without ROS
-(``MonitorCore.add_y`` + ``add_u``: name mapping, pairing, gap counting, the tick, coverage).
+(``MonitorCore.add_y`` + ``add_u``: name mapping, pairing, gap counting, the tick, coverage),
+and the same with ``input_source: effort`` (``MonitorCore.add_joint_state``: u_p from the
+message's effort with Pinocchio, issue 15.3).
 """
 import argparse
 import time
@@ -76,8 +78,31 @@ def main():
                 raise SystemExit(f"unexpected events at tick {i}: {events}")
         return d[K + 10:] * 1e6
 
+    def run_effort():
+        """``input_source: effort``: MonitorCore.add_joint_state, u_p of each message from its
+        position, velocity and effort with the LWA-4P's nominal model (Pinocchio ABA), then
+        the same pairing, tick and coverage. The data are the same; u_p is what the effort
+        gives, so this times the work, not a verdict."""
+        from reachset_ros.robot.dynamics import DEFAULT_URDF, JOINT_NAMES
+        from reachset_ros.robot.effort import load_effort_input
+        src = load_effort_input(DEFAULT_URDF)
+        names = list(JOINT_NAMES)
+        m2 = ConformanceModel(model.plant, model.plant_spec, model.estimator, K,
+                              {n: model.joints[f"j{j}"] for j, n in enumerate(names)})
+        core = MonitorCore(m2, None, 10**9, src)
+        qd, tau = [0.0] * J, [1.0] * J
+        d = np.empty(T)
+        for i in range(T):
+            stamp = 10**18 + 4_000_000 * i
+            y = (0.3 + Y[i]).tolist()
+            t0 = time.perf_counter()
+            core.add_joint_state(stamp, names, y, qd, tau)
+            d[i] = time.perf_counter() - t0
+        return d[K + 10:] * 1e6
+
     for label, d in (("monitor tick", lambda: run(False)), ("tick + coverage", lambda: run(True)),
-                     ("MonitorCore.add_y + add_u (the node's whole check)", run_core)):
+                     ("MonitorCore.add_y + add_u (the node's whole check)", run_core),
+                     ("MonitorCore.add_joint_state, input_source effort (u_p by Pinocchio ABA)", run_effort)):
         d = d()
         print(f"{label}, {J} joints, k*={K}, {len(d)} ticks: mean {d.mean():.1f} us, "
               f"p50 {np.percentile(d, 50):.1f} us, p99 {np.percentile(d, 99):.1f} us, max {d.max():.1f} us")
