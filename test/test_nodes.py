@@ -890,3 +890,37 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     finally:
         launch.stop(procs)
         rec.close()
+
+
+def test_controller_never_commands_back_in_stamp(ros):
+    """An estimate waiting for its reference when a safe stop begins: the next (braking)
+    estimate used to be commanded first and the waiting one 20 ms later, an older stamp on
+    /plant_input, which the monitor takes for a clock going back (a stamp_backwards stop seen
+    in CI right after a reset). The waiting estimate is now controlled first; a command for
+    an older tick than the last one sent is never published."""
+    from rclpy.parameter import Parameter
+    node = ControllerNode(parameter_overrides=[
+        Parameter("joints", value=JOINTS), Parameter("u_max", value=[26.0, 26.0]), Parameter("omega", value=[10.0]),
+        Parameter("zeta", value=[1.0]), Parameter("allow_uncertified", value=True),
+        Parameter("reference_timeout", value=0.02)])
+    try:
+        sent = []
+        publish = node.input_pub.publish
+        node.input_pub.publish = lambda m: (sent.append(stamp_ns(m.header.stamp)), publish(m))
+
+        def est(stamp):
+            e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            to_stamp(e.header.stamp, stamp)
+            return e
+        s1, s2 = 10**18 + 4_000_000, 10**18 + 8_000_000
+        node.on_estimate(est(s1))                       # no reference yet: waits
+        assert sent == []
+        node.on_safe_stop(SafeStop(active=True, kind="manual", reason="test"))
+        node.on_estimate(est(s2))                       # braking
+        time.sleep(0.03)
+        node.on_wait_timer()
+        node.on_estimate(est(s1))                       # a late duplicate of an older tick
+        assert sent == [s1, s2], sent
+        assert node.counters["stale_estimate"] == 1
+    finally:
+        node.destroy_node()

@@ -34,8 +34,8 @@ class ControllerLifecycleNode(ControllerNode, LifecycleNode):
 
     MANAGED = True
 
-    def __init__(self):
-        super().__init__()
+    def __init__(self, **node_kwargs):
+        super().__init__(**node_kwargs)
         self.hold_reason = "unconfigured"
         self.counters["ignored_unconfigured"] = 0
 

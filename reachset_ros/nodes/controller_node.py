@@ -54,8 +54,8 @@ DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
 
 class ControllerNode(Node):
-    def __init__(self):
-        super().__init__("controller_node")
+    def __init__(self, **node_kwargs):
+        super().__init__("controller_node", **node_kwargs)
         self.declare_parameter("joints", DEFAULT_JOINTS, desc("joints; /effort_commands uses this order", read_only=True))
         self.declare_parameter("robot_params", "", desc("identified robot parameters YAML ('' = URDF values)",
                                                         read_only=True))
@@ -101,7 +101,8 @@ class ControllerNode(Node):
         self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
                          "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
-                         "torque_beyond_limits": 0}
+                         "torque_beyond_limits": 0, "stale_estimate": 0}
+        self.last_command_stamp = None   # stamp of the last command sent (commands never go back in stamp)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
         self.flagged = False             # the previous tick's reference was out of class
@@ -354,12 +355,20 @@ class ControllerNode(Node):
         two come from different nodes, in either order). An estimate whose reference has not
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
+        if not late and self.waiting is not None and self.waiting[0] < stamp:
+            # an older estimate still waits for its reference: it is controlled first, whether
+            # this one tracks or brakes, so commands never go back in stamp (the monitor's
+            # stamp_backwards fault; seen when a stop began while an estimate waited)
+            _, old, _ = self.waiting
+            self.waiting = None
+            self.on_estimate(old, late=True)
+        if self.last_command_stamp is not None and self.last_command_stamp - 1_000_000_000 < stamp <= self.last_command_stamp:
+            # a command for a later tick is out: never go back (a jump back by more than 1 s is
+            # a new clock, e.g. a restarted simulation, and is followed)
+            self.counters["stale_estimate"] += 1
+            return
         braking = self.stop_active or not self.stop_known or self.own_stop is not None or self.hold_reason is not None
         if not late and not braking and stamp not in self.refs:
-            if self.waiting is not None and self.waiting[0] < stamp:
-                _, old, _ = self.waiting
-                self.waiting = None
-                self.on_estimate(old, late=True)
             if float(self.get_parameter("reference_timeout").value) > 0:
                 self.waiting = (stamp, msg, time.monotonic())
                 return
@@ -407,6 +416,7 @@ class ControllerNode(Node):
 
     def publish_command(self, header_stamp, q, qd, u):
         """``/plant_input`` u_p, ``/brake_command`` and ``/effort_commands`` tau = M(q) u_p + psi(q, qd)."""
+        self.last_command_stamp = stamp_ns(header_stamp)
         # full-robot feedback linearization: joints not controlled here get u_p = 0
         qf = np.zeros(self.robot.nv)
         qdf = np.zeros(self.robot.nv)
