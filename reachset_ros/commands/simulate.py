@@ -13,7 +13,19 @@ velocity = measured velocity, effort = the torque command issued at that tick [N
 stamp: the convention of the real LWA-4P recordings, docs/any-arm.md), as an arm driven by
 another controller is recorded; ``--plant-input`` also writes ``/plant_input`` (the u_p the
 controller used). A fault of the simulator can be injected; the JSON reports the stamp at
-which it first changes a measurement (``fault.onset_ns``).
+which it first changes a measurement (``fault_onset_ns``, also ``fault.onset_ns``:
+:meth:`reachset_ros.sim.simulator.SimulatedArm.onset_stamp`), and what the arm's hardware
+did (``hard_stops`` reached, ``torque_clamped_ticks``, ``skipped_samples`` of a NaN fault).
+
+Synopsis::
+
+    reachset simulate --robot URDF [--joints a,b,...] [--nominal PARAMS.yaml] --seconds S --out BAG
+                      [--seed N] [--storage mcap|sqlite3] [--plant-input]
+                      [--fault payload|torque|acceleration|bias|frozen|nan [--fault-at S]
+                       [--fault-joint J] [--fault-magnitude X]] [--json]
+
+Bad input is refused (one line, exit 2) before anything is written; the bag is written
+atomically (:class:`reachset_ros.bags.BagWriter`).
 """
 import numpy as np
 
@@ -82,16 +94,28 @@ def _fault(args, names):
         if args.fault_magnitude is not None:
             raise ReachsetError(f"--fault-magnitude: a {args.fault} fault has none")
     else:
-        if not np.isfinite(mag) or (args.fault in ("payload", "nan") and mag <= 0):
-            raise ReachsetError(f"--fault-magnitude must be finite (and > 0 for {args.fault}), got {mag}")
+        if not np.isfinite(mag):
+            raise ReachsetError(f"--fault-magnitude must be finite, got {mag}")
+        if args.fault in ("payload", "nan") and mag <= 0:
+            raise ReachsetError(f"--fault-magnitude must be > 0 for a {args.fault} fault, got {mag}")
+        if field == "count" and mag != int(mag):
+            raise ReachsetError(f"--fault-magnitude of a nan fault is a number of samples, got {mag}")
         kw[field] = int(mag) if field == "count" else float(mag)
     return cls(**kw), {"kind": args.fault, "joint": joint, "magnitude": None if field is None else kw[field],
                        "unit": unit, "at_s": float(at)}
 
 
+def _max_abs(a):
+    """Largest finite |a| (None if there is none: a JSON value)."""
+    a = np.abs(np.asarray(a, dtype=np.float64))
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else None
+
+
 def run(args):
-    if not (np.isfinite(args.seconds) and args.seconds > 0):
-        raise ReachsetError(f"--seconds must be > 0, got {args.seconds}")
+    if not (np.isfinite(args.seconds) and args.seconds >= 2 * simm.DT):
+        raise ReachsetError(f"--seconds must be > 0 and give two samples (>= {2 * simm.DT} s at "
+                            f"{1 / simm.DT:.0f} Hz), got {args.seconds}")
     from pathlib import Path
     out = Path(args.out)
     if out.exists():
@@ -108,23 +132,36 @@ def run(args):
     recs = sr.simulate_arm_recordings(args.seconds, seed=args.seed, sim_config=cfg,
                                       faults=() if fault is None else (fault,), log=log)
     stamps, Q, QD, EFF = log["stamps"], log["q"], log["qd"], log["effort"]
+    onset = None if fault is None else int(log["fault_onsets"][0])
+    if onset is not None and onset > stamps[-1]:
+        raise ReachsetError(f"--fault-at {fdesc['at_s']}: the fault would first change the measurement stamped "
+                            f"{onset}, after the recording's last ({int(stamps[-1])}); start it earlier")
+    # everything is computed before the bag is written: a refusal leaves nothing behind
+    err = {n: _max_abs(r.y[1:] - r.q_d[:-1]) for n, r in recs.items()}
+    counters = log["counters"]
+    res = {"bag": str(out), "robot": str(urdf), "joints": names, "ticks": int(len(stamps)),
+           "seconds": float(args.seconds), "seed": args.seed, "plant_input": bool(args.plant_input),
+           "storage": args.storage, "period_ns": int(round(cfg.dt * 1e9)),
+           "first_stamp_ns": int(stamps[0]), "last_stamp_ns": int(stamps[-1]),
+           "max_tracking_error_rad": err,
+           "max_abs_effort": {n: _max_abs(EFF[:, j]) for j, n in enumerate(names)},
+           "effort_limit": dict(zip(names, model.effort_limit.tolist())),
+           "hard_stops": int(counters["hard_stop"]), "torque_clamped_ticks": int(counters["torque_clamped"]),
+           "skipped_samples": dict(zip(names, log["skipped_samples"].tolist())),
+           "fault_onset_ns": onset,
+           "fault": None if fault is None else {**fdesc, "onset_ns": onset}}
     with bags.BagWriter(out, storage=args.storage) as w:
         for k, st in enumerate(stamps):
             st = int(st)
             w.write(bags.JOINT_STATES, bags.joint_state(st, names, Q[k], QD[k], EFF[k]), st)
             if args.plant_input:
                 w.write(bags.PLANT_INPUT, bags.plant_input(st, names, [recs[n].u[k] for n in names]), st)
-    err = {n: float(np.nanmax(np.abs(r.y[1:] - r.q_d[:-1]))) for n, r in recs.items()}
-    res = {"bag": str(out), "robot": str(urdf), "joints": names, "ticks": int(len(stamps)),
-           "seconds": float(args.seconds), "seed": args.seed, "plant_input": bool(args.plant_input),
-           "first_stamp_ns": int(stamps[0]), "last_stamp_ns": int(stamps[-1]),
-           "max_tracking_error_rad": err,
-           "max_abs_effort": dict(zip(names, np.nanmax(np.abs(EFF), axis=0).tolist())),
-           "effort_limit": dict(zip(names, model.effort_limit.tolist())),
-           "fault": None if fault is None else {**fdesc, "onset_ns": int(log["fault_onsets"][0])}}
+    fmt = lambda v: "-" if v is None else f"{v:.3g}"      # noqa: E731
     lines = [f"simulate: {len(names)} joints of {urdf.name}, {res['ticks']} ticks -> {out}",
-             "max tracking error [rad]: " + ", ".join(f"{n} {v:.3g}" for n, v in err.items())]
+             "max tracking error [rad]: " + ", ".join(f"{n} {fmt(v)}" for n, v in err.items()),
+             "max |effort| / limit [N m]: " + ", ".join(f"{n} {fmt(res['max_abs_effort'][n])}/{lim:g}"
+                                                        for n, lim in res["effort_limit"].items()),
+             f"hard stops hit: {res['hard_stops']}, ticks with a clamped torque: {res['torque_clamped_ticks']}"]
     if fault is not None:
-        lines.append(f"fault {fdesc['kind']} from {fdesc['at_s']} s: first changed measurement at stamp "
-                     f"{res['fault']['onset_ns']}")
+        lines.append(f"fault {fdesc['kind']} from {fdesc['at_s']} s: first changed measurement at stamp {onset}")
     emit(args, res, "\n".join(lines))

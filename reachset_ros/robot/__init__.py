@@ -23,6 +23,12 @@ Submodules
     U_p from torque limits (paper eq. ``deriveInputConstraint``, Table I), sound.
 :mod:`~reachset_ros.robot.lwa4p`
     The real LWA-4P recordings: reading, nominal-model fit, import to a bag.
+:mod:`~reachset_ros.robot.effort`
+    u_p of a measured effort (inverse of eq. 6), for bags with only ``/joint_states``.
+:mod:`~reachset_ros.robot.descriptions`
+    Where a URDF is: a path, or ``example-robot-data:<path>`` (the Franka Panda, UR arms, ...).
+    :func:`load_model` loads any serial arm's URDF; ``joints=`` keeps some joints and locks
+    the others (a gripper's fingers) at their neutral configuration.
 
 The names of ``dynamics``, ``model_error`` and ``inertial_id`` are re-exported here
 (``from reachset_ros import robot as rb; rb.load_model()``); ``input_limits``, ``interval``

@@ -1,12 +1,16 @@
-"""Simulation: the simulated LWA-4P, its reference trajectories and simulated recordings (pure core, no ROS).
+"""Simulation: the simulated arm, its reference trajectories and simulated recordings (pure core, no ROS).
 
-What stands in for the real robot in the demo, the tests and the benchmarks:
+What stands in for the real robot in the demo, the tests and the benchmarks. The arm is the
+LWA-4P by default and any serial arm's URDF model otherwise (``reachset simulate --robot``):
+limits, effort limits, brakes and the reference box come from the model
+(:meth:`~reachset_ros.sim.reference.ReferenceConfig.for_robot`); only the defaults name the LWA-4P.
 
 * :mod:`~reachset_ros.sim.simulator` - a torque-controlled arm with the paper's timing
   (Appendix A: one sample of input and output delay), model error, friction, noise and
   injectable faults (:class:`~reachset_ros.sim.simulator.SimulatedArm`);
 * :mod:`~reachset_ros.sim.reference` - random trapezoidal / quintic point-to-point
-  references inside the paper's limits (Sec. IV, ``U_ref``), and the stream
+  references inside the paper's limits (Sec. IV, ``U_ref``; Table I for the LWA-4P, the
+  URDF's limits for any other arm), and the stream
   ``reference_node`` publishes;
 * :mod:`~reachset_ros.sim.recordings` - simulated closed-loop recordings (written as bags)
   for tests, benchmarks and tools.

@@ -3,7 +3,7 @@
 Two sources: independent joints of the per-joint plant of the paper's Appendix A with bounded
 disturbances and a smooth model error along a sum-of-sines reference (:class:`Scenario`,
 :func:`simulate_recordings`, through :func:`reachset_ros.synthesis.reference_error.simulate_closed_loop`),
-and the project's simulated LWA-4P driven by the nodes' control law
+and the project's simulated arm (the LWA-4P, or any URDF's) driven by the nodes' control law
 (:func:`simulate_arm_recordings`). Either becomes synthesis input directly
 (:func:`recordings_series`) or a rosbag2 with the topics of INTERFACES.md (:func:`write_recordings`).
 
@@ -189,16 +189,21 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
 
 def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None, faults=(),
                             log=None, reference=None):
-    """Recordings of the project's simulated LWA-4P (:mod:`reachset_ros.sim.simulator`) in closed loop.
+    """Recordings of the project's simulated arm (:mod:`reachset_ros.sim.simulator`) in closed loop.
 
+    Any serial arm: the simulated LWA-4P by default, any URDF's model through ``sim_config``.
     The nodes' code path without ROS: per tick the measurement ``y[k] = q[k-1]`` (one sample
     of output delay) goes through each joint's observer and control law
     (:func:`reachset_ros.systems.closedloop.closed_loop_tick`, ``u_ff = qdd_d``), the torque is the
-    feedback linearization ``tau = M(q_hat) u_p + psi(q_hat, qd_hat)`` of the *nominal* model
-    (the controller node's law) and the simulated arm (the "true" robot with model error,
+    feedback linearization ``tau = M(q_hat) u_p + psi(q_hat, qd_hat)`` (paper eq. 6) of the
+    *nominal* model (the controller node's law; with the exact model the joints would obey
+    ``qdd = u_p``, eq. 7) and the simulated arm (the "true" robot of eq. 5 with model error,
     friction, quantization and noise; :meth:`SimConfig.realistic`) applies it with one sample
     of input delay. The references are the project's random point-to-point trajectories
-    (:class:`reachset_ros.sim.reference.ReferenceGenerator`, |qdd_d| <= 2).
+    (:class:`reachset_ros.sim.reference.ReferenceGenerator`, |qdd_d| <= 2). A non-finite
+    measurement of a joint (a :class:`~reachset_ros.sim.simulator.NaNSamples` fault) is skipped
+    as ``observer_node`` skips it: that joint's observer does not advance and its previous
+    u_p holds for the tick (counted in ``log["skipped_samples"]``).
 
     Parameters
     ----------
@@ -222,8 +227,10 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     log : dict, optional
         Filled with arrays of every tick: ``stamps`` (T,), ``q``, ``qd`` (T, n) measured,
         ``effort`` (T, n) the torque command issued at the tick [N m] (clamped to the
-        URDF's effort limits when the arm clamps, i.e. what the drive executes), and
-        ``fault_onsets``.
+        URDF's effort limits when the arm clamps, i.e. what the drive executes),
+        ``fault_onsets``, ``counters`` (the arm's :attr:`SimulatedArm.counters` at the end:
+        ``hard_stop``, ``torque_clamped``, ``invalid_command``, ``brake_engaged``) and
+        ``skipped_samples`` (n,) (non-finite measurements skipped, per joint).
 
     Returns
     -------
@@ -261,8 +268,9 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     Y, U = np.empty((T, n)), np.empty((T, n))
     XH = [np.empty((T, len(xn))) for xn in xnames]
     stamps = np.empty(T, np.int64)
-    qh, qdh, u = np.zeros(n), np.zeros(n), np.zeros(n)
+    qh, qdh, u = Qd[0].copy(), QDd[0].copy(), np.zeros(n)    # (held by a joint whose sample is skipped)
     QDm, EFF = np.empty((T, n)), np.empty((T, n))
+    skipped = np.zeros(n, np.int64)
     lim = arm.tau_limit                 # the drives' clamp (inf where there is none)
     for k in range(T):
         stamps[k] = m.stamp_ns
@@ -270,6 +278,12 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
         y = m.q_measured
         for j in range(n):
             obs, ctrl = comps[j]
+            if not np.isfinite(y[j]):
+                # an invalid sample is skipped, as observer_node does (a non-finite input would
+                # poison the observer state for good): no estimate, the previous command holds
+                skipped[j] += 1
+                XH[j][k] = XH[j][k - 1] if k else np.nan
+                continue
             xr = np.empty(len(xnames[j]))
             for i, nm in enumerate(xnames[j]):
                 xr[i] = {"q": Qd[k, j], "qd": QDd[k, j], "d": 0.0,
@@ -284,7 +298,8 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
         EFF[k] = np.clip(tau, -lim, lim)
         m = arm.step(tau)
     if log is not None:
-        log.update(stamps=stamps.copy(), q=Y.copy(), qd=QDm, effort=EFF, fault_onsets=onsets, names=names)
+        log.update(stamps=stamps.copy(), q=Y.copy(), qd=QDm, effort=EFF, fault_onsets=onsets, names=names,
+                   counters=dict(arm.counters), skipped_samples=skipped)
     out = {}
     for j, nm in enumerate(names):
         out[nm] = Recording(stamps.copy(), Y[:, j].copy(), U[:, j].copy(), XH[j], xnames[j],

@@ -342,15 +342,19 @@ class SimulatedArm:
         Sensor faults: the first tick with ``t_k >= start_s``. Physical faults act on the
         physics from the first integration substep starting at or after ``start_s``; the
         first true state they change is the next tick's, ``t_j``, and with the output delay
-        the measurement stamped ``t_{j+1}`` is the first to show it.
+        the measurement stamped ``t_{j+1}`` is the first to show it. After :meth:`reset`, a
+        fault starting before the arm's present tick k (e.g. ``start_s = 0`` injected after
+        ``reset``) cannot change what is already measured or integrated: its onset is then
+        tick k+1 (sensor) or k+2 (physical).
         """
         dt = self.config.dt
+        now = self.state.k if self.state else -1        # the last measurement already taken
         if not fault.physical:
-            return self.stamp(math.ceil(fault.start_s / dt - 1e-9))
+            return self.stamp(max(math.ceil(fault.start_s / dt - 1e-9), now + 1))
         sub = self.state.substeps if self.state else self.config.substeps
         h = dt / sub
         t_eff = math.ceil(fault.start_s / h - 1e-9) * h
-        j = math.floor(t_eff / dt + 1e-9) + 1
+        j = max(math.floor(t_eff / dt + 1e-9) + 1, now + 1)
         return self.stamp(j + 1)
 
     def _joint(self, j) -> int:
