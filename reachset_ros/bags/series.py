@@ -201,7 +201,7 @@ class _Sink:
         values = np.asarray(values, np.float64)
         names = self._names(names, values.shape[1] if values.ndim == 2 else 0, n)
         self.groups.append((np.full(n, src, np.int64), np.asarray(t, np.uint64), np.asarray(pos, np.int64),
-                            np.asarray(stamps, np.int64), tuple(names), np.asarray(values, np.float64)))
+                            np.asarray(stamps, np.int64), tuple(names), values))
 
     def add_row(self, src, t, pos, stamp, names, values):
         names = self._names(names, len(values), 1)
@@ -578,20 +578,7 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
     for ser, _ in parts[1:]:
         if list(ser) != names:
             raise ReachsetError(f"bags have different joints: {names} vs {list(ser)}; pass --joints")
-    out = {}
-    for n in names:
-        stamps, y, u, segs, off = [], [], [], [], 0
-        for ser, _ in parts:
-            s = ser[n]
-            stamps.append(s.stamps)
-            y.append(s.y)
-            u.append(s.u)
-            segs.extend((a + off, b + off) for a, b in s.segments)
-            off += len(s.stamps)
-        arrs = [np.concatenate(a) for a in (stamps, y, u)]
-        for a in arrs:
-            a.setflags(write=False)
-        out[n] = JointSeries(n, *arrs, tuple(segs), dt)
+    out = concat_series([ser for ser, _ in parts], dt)
     rep = ReadReport()
     rep.input = parts[0][1].input
     rep.period_s = [v for _, r in parts for v in r.period_s]
@@ -603,6 +590,27 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
                 acc[k] = acc.get(k, 0) + v
         rep.ignored_joints = sorted(set(rep.ignored_joints) | set(r.ignored_joints))
     return out, rep
+
+
+def concat_series(parts, dt):
+    """Per-joint series of several recordings one after the other (``{name: JointSeries}``
+    each, the same joints): arrays concatenated, segments offset, so a test case never spans
+    two recordings. The stamps are kept as they are."""
+    out = {}
+    for n in parts[0]:
+        stamps, y, u, segs, off = [], [], [], [], 0
+        for ser in parts:
+            s = ser[n]
+            stamps.append(s.stamps)
+            y.append(s.y)
+            u.append(s.u)
+            segs.extend((a + off, b + off) for a, b in s.segments)
+            off += len(s.stamps)
+        arrs = [np.concatenate(a) for a in (stamps, y, u)]
+        for a in arrs:
+            a.setflags(write=False)
+        out[n] = JointSeries(n, *arrs, tuple(segs), dt)
+    return out
 
 
 def _read_one(path, joints, dt, topics=(JOINT_STATES, PLANT_INPUT), joint_names=None):

@@ -143,10 +143,9 @@ def identify_command(paths, topics, robot=None, nominal=None):
         if missing:
             if len(missing) == len(effort.joint_names):
                 return None, f"no joint of {robot} is on {y_topic}"
-            from ..robot.effort import load_effort_input
             effort = load_effort_input(robot, nominal, lock=missing)
             lock = f" --lock-joints {','.join(missing)}"
-        joints = [j for j in effort.joint_names]
+        joints = list(effort.joint_names)
     period = r["stamps"]["period_ms"]
     if not period:
         return None, f"fewer than two {JOINT_STATES} messages"

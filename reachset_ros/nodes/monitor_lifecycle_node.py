@@ -20,7 +20,6 @@ driven through the standard lifecycle services (``~/change_state``, ``~/get_stat
 from __future__ import annotations
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from reachset_msgs.msg import SafeStop
 
 from .common import spin_node
 from .monitor_node import MonitorNode
@@ -52,20 +51,11 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
         if self.active:
             super().watchdog()
 
-    def publish_stop_state(self, active, kind, why):
-        """Publish (latched) the lifecycle's safe-stop state."""
-        self.stop_active = active
-        m = SafeStop()
-        m.header.stamp = self.get_clock().now().to_msg()
-        m.active, m.kind, m.reason = active, kind, f"{LIFECYCLE_STOP} {why}"
-        self.stop_msg = m
-        self.stop_pub.publish(m)
-
     def lifecycle_stop(self, why):
         """Latch the lifecycle's own safe stop (the controller brakes and holds); a stop
         already latched (by a check) stays as it is."""
         if not self.stop_active:
-            self.publish_stop_state(True, "manual", why)
+            self.publish_stop_state(True, "manual", f"{LIFECYCLE_STOP} {why}")
             self.get_logger().warning(f"safe stop latched: {self.stop_msg.reason}")
 
     # -- transitions -------------------------------------------------------------------------
@@ -82,12 +72,10 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.core.reset()
-        self.last_tick_wall = None
-        self.last_rx_wall.clear()
-        self.first_rx_wall.clear()
+        self.restart_watchdog()
         self.active = True
         if self.stop_active and self.stop_msg is not None and self.stop_msg.reason.startswith(LIFECYCLE_STOP):
-            self.publish_stop_state(False, "reset", "active: checking")
+            self.publish_stop_state(False, "reset", f"{LIFECYCLE_STOP} active: checking")
             self.get_logger().info("active: checking; the lifecycle's safe stop is released")
         return TransitionCallbackReturn.SUCCESS
 

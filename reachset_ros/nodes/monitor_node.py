@@ -326,11 +326,24 @@ class MonitorNode(Node):
         if self.MANAGED:
             return
         # the initial state, latched: a controller waiting for the monitor may start
+        self.publish_stop_state(False, "reset", "monitor started: no safe stop active")
+
+    def publish_stop_state(self, active, kind, reason):
+        """Publish (latched) a safe-stop state stamped now, without a check's details: the
+        start-up state, a reset, the managed variant's lifecycle stop."""
+        self.stop_active = active
         m = SafeStop()
         m.header.stamp = self.get_clock().now().to_msg()
-        m.active, m.kind, m.reason = False, "reset", "monitor started: no safe stop active"
+        m.active, m.kind, m.reason = active, kind, reason
         self.stop_msg = m
         self.stop_pub.publish(m)
+
+    def restart_watchdog(self):
+        """Forget the wall times of the last tick and messages: the missing-data watchdog
+        starts again from the next messages (a new model, a reset, an activation)."""
+        self.last_tick_wall = None
+        self.last_rx_wall.clear()
+        self.first_rx_wall.clear()
 
     # -- configuration ------------------------------------------------------------------
     def build(self, path, joints=None, max_missing=None):
@@ -351,9 +364,7 @@ class MonitorNode(Node):
         self.core = core
         self.model_id = model_id
         self.clean_ticks, self.last_unclean = 0, "no tick checked yet"
-        self.last_tick_wall = None
-        self.last_rx_wall.clear()
-        self.first_rx_wall.clear()
+        self.restart_watchdog()
         self.get_logger().info(f"monitoring joints {core.joints} with model {path} (k*={core.model.horizon})")
 
     def load(self, path, joints=None):
@@ -541,18 +552,11 @@ class MonitorNode(Node):
                 self.get_logger().warning(why)
                 response.success, response.message = False, why
                 return response
-        self.stop_active = False
         self.clean_ticks, self.last_unclean = 0, "no tick checked since the reset"
         if self.core is not None:
             self.core.reset()
-        self.last_tick_wall = None
-        self.last_rx_wall.clear()
-        self.first_rx_wall.clear()
-        m = SafeStop()
-        m.header.stamp = self.get_clock().now().to_msg()
-        m.active, m.kind, m.reason = False, "reset", "reset through ~/reset"
-        self.stop_msg = m
-        self.stop_pub.publish(m)
+        self.restart_watchdog()
+        self.publish_stop_state(False, "reset", "reset through ~/reset")
         response.success = True
         response.message = "safe stop cleared" if was else "no safe stop was active"
         return response

@@ -8,7 +8,7 @@ measured torque with the nominal model, ``u_p = M̂(q)⁻¹ (τ − ψ̂(q, q̇)
 ``reachset import-lwa4p`` does for the Schunk LWA-4P recordings: :func:`plant_inputs` is the
 one implementation both use, and the monitor node's ``input_source: effort`` calls it too.
 
-Choices (documented in docs/real-data.md, "Any arm"):
+Choices (documented in docs/any-arm.md):
 
 * no filter and no lag: the effort of the JointState message stamped t_k is paired with the
   position and velocity of the same message, and the result is the plant input of tick k
@@ -113,14 +113,14 @@ def load_effort_input(urdf, nominal=None, joints=None, lock=None) -> EffortInput
     if urdf is None:
         raise ReachsetError("--input effort needs --robot URDF")
     urdf = resolve_urdf(urdf)
+    if lock and joints is not None:
+        raise ReachsetError("give the joints to keep or those to lock, not both")
+    every = load_model(urdf).joint_names if (lock or joints is not None) else None
     if lock:
-        if joints is not None:
-            raise ReachsetError("give the joints to keep or those to lock, not both")
-        every = load_model(urdf).joint_names
         unknown = [j for j in lock if j not in every]
         if unknown:
             raise ReachsetError(f"{urdf}: no joint {unknown[0]} to lock (its joints: {', '.join(every)})")
         joints = [j for j in every if j not in lock]
     model = load_model(urdf, nominal, joints)
-    locked = tuple(j for j in load_model(urdf).joint_names if j not in model.joint_names) if joints else ()
+    locked = () if every is None else tuple(j for j in every if j not in model.joint_names)
     return EffortInput(model, str(urdf), None if nominal is None else str(Path(nominal).resolve()), locked)

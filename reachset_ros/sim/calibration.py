@@ -13,7 +13,11 @@ two of them per joint. The calibration itself (which effects, how large) is
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+
+from ..bags.series import concat_series
 
 from ..conformance.estimators import Estimator
 from ..conformance.identify import identify_sets
@@ -35,27 +39,17 @@ def run_reference(run, prep=lwa4p.Preprocessing()):
 def simulate_real_runs(runs, sim_config, gains=None, seed=0):
     """Per-joint series of the simulated arm along each real run's trajectory, concatenated
     (each run a segment of its own, separated by a pause in the stamps)."""
-    parts = []
+    parts, t0 = [], None
     for i, r in enumerate(runs):
         recs = simulate_arm_recordings(0.0, gains, seed=seed + i, sim_config=sim_config, reference=run_reference(r))
-        parts.append(recordings_series(recs)[0])
-    names = list(parts[0])
-    out = {}
-    from ..bags.series import JointSeries
-    for n in names:
-        st, y, u, segs, off, t0 = [], [], [], [], 0, 0
-        for p in parts:
-            s = p[n]
-            shift = t0 - int(s.stamps[0])
-            st.append(s.stamps + shift)
-            y.append(s.y)
-            u.append(s.u)
-            segs.extend((a + off, b + off) for a, b in s.segments)
-            off += len(s.stamps)
-            t0 = int(st[-1][-1]) + 1_000_000_000
-        arrs = [np.concatenate(a) for a in (st, y, u)]
-        out[n] = JointSeries(n, *arrs, tuple(segs), s.dt)
-    return out
+        ser = recordings_series(recs)[0]
+        # each run after the previous one's last stamp plus a 1 s pause (every simulated run
+        # starts at the simulator's start stamp)
+        first = int(next(iter(ser.values())).stamps[0])
+        shift = 0 if t0 is None else t0 - first
+        parts.append({n: replace(s, stamps=s.stamps + shift) for n, s in ser.items()})
+        t0 = int(next(iter(parts[-1].values())).stamps[-1]) + 1_000_000_000
+    return concat_series(parts, next(iter(parts[0].values())).dt)
 
 
 def identified_alphas(series, horizon=125, estimator="fd"):
