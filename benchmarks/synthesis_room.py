@@ -1,0 +1,99 @@
+"""Benchmark: where the room in ||R*_e|| is (issue 16.1), on simulated recordings with known disturbances.
+
+Six joints of :func:`reachset_ros.sim.recordings.simulate_recordings` (seed 3, 20,000 ticks =
+80 s, the recordings' own gains HG h1 15, h2 30, omega 20, zeta 1, with /reference), and per
+joint ``||R*_e||`` (Appendix B method 3, every tick) of
+
+* ``plain``: the plain reference pipeline - ``fd`` initial states, a 25 x 10 grid over omega
+  in [1, 100] (log) and zeta in [0.3, 3] with h1 = 15, h2 = 30, the inner LP in alpha;
+* ``default``: ``reachset synthesize``'s search (Sobol + Nelder-Mead over omega, zeta; the
+  paper's parametrisation);
+* ``free4``: omega, zeta, h1, h2 free (``--free omega,zeta,h1,h2``);
+* ``observer``: the default search with the ``observer`` initial-state estimator (d held at 0);
+* ``oracle``: the true disturbance sets (the scenario's bounds; not conformance-identified)
+  at the plain pipeline's gains - the room there is in the sets, not in the search.
+
+Syntax::
+
+    .venv/bin/python benchmarks/synthesis_room.py [--ticks N]
+
+Prints a Markdown table and ``RESULT {json}``. Asserts nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from reachset_ros import synthesis as sy
+from reachset_ros.conformance.estimators import Estimator
+from reachset_ros.sim import recordings as sr
+from reachset_ros.synthesis.search import Evaluator
+from reachset_ros.systems.plant import lwa4p_joint_plant
+
+JOINTS = [f"arm_{i}_joint" for i in range(1, 7)]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ticks", type=int, default=20_000)
+    args = ap.parse_args(argv)
+    recs = sr.simulate_recordings(JOINTS, args.ticks, seed=3)
+    series, refs = sr.recordings_series(recs)
+    plant = lwa4p_joint_plant()
+    cfg = sy.load_config()
+    um = {j: sy.u_max_for(cfg, j) for j in JOINTS}
+    pb_fd = sy.problems_from_series(series, plant, Estimator("fd"), 125, um, 2.0, refs, 3)
+    pb_ob = sy.problems_from_series(series, plant, Estimator.observer(plant), 125, um, 2.0, refs, 3)
+    rows = {}
+    for i, (pf, po) in enumerate(zip(pb_fd, pb_ob)):
+        r = {}
+        space = sy.SearchSpace.from_config(cfg, "hg")
+        ev = Evaluator(pf, space, None, 0.999)
+        t = time.perf_counter()
+        best = None
+        for om in np.geomspace(1, 100, 25):
+            for ze in np.linspace(0.3, 3.0, 10):
+                e = ev({**space.full(), "omega": om, "zeta": ze})
+                if e.feasible and (best is None or e.merit < best.merit):
+                    best = e
+        r["plain"] = {"re_norm": best.merit, "omega": best.values["omega"], "zeta": best.values["zeta"],
+                      "seconds": time.perf_counter() - t}
+        for name, pb, free in (("default", pf, None), ("free4", pf, ["omega", "zeta", "h1", "h2"]),
+                               ("observer", po, None)):
+            sp = sy.SearchSpace.from_config(cfg, "hg", free=free)
+            t = time.perf_counter()
+            res = sy.synthesize([pb], sp, with_separate=False)[pb.name]
+            g = res.gains()
+            r[name] = {"re_norm": res.re_norm, **{k: g[k] for k in ("omega", "zeta", "h1", "h2")},
+                       "seconds": time.perf_counter() - t, "conformant": bool(res.conformant)}
+        sc = sr.Scenario.for_joint(i)
+        rec = recs[pf.name]
+        me = sc.c_visc * rec.qd_d + sc.c_coul * np.tanh(rec.qd_d / 0.05) + sc.c_grav * np.cos(rec.q_d)
+        true = np.array([sc.a1, sc.a2 + np.abs(me).max(), sc.av])
+        eo = Evaluator(pf, space, true, 0.999)(best.values)
+        r["oracle"] = {"re_norm": eo.merit if eo.feasible else None, "alpha_true": true.tolist()}
+        r["alpha_plain_over_true"] = (np.asarray(best.alpha) / true).tolist()
+        rows[pf.name] = r
+        print(f"[synthesis_room] {pf.name} done", flush=True)
+    print("| joint | plain | default | free4 (omega, zeta, h1, h2) | observer estimator | oracle sets | "
+          "default/plain | free4/plain | observer/plain | oracle/plain |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for n, r in rows.items():
+        p = r["plain"]["re_norm"]
+        o = r["oracle"]["re_norm"]
+        print(f"| {n} | {p:.4f} | {r['default']['re_norm']:.4f} | {r['free4']['re_norm']:.4f} | "
+              f"{r['observer']['re_norm']:.4f} | {o:.4f} | {r['default']['re_norm'] / p:.3f} | "
+              f"{r['free4']['re_norm'] / p:.3f} | {r['observer']['re_norm'] / p:.3f} | {o / p:.3f} |")
+    print("| seconds per joint (mean) | " + " | ".join(
+        f"{np.mean([r[k]['seconds'] for r in rows.values()]):.1f}" for k in ("plain", "default", "free4", "observer"))
+        + " | | | | | |")
+    print("alpha of the plain optimum / true alpha (W1, W2, V): " + "; ".join(
+        f"{n}: " + ", ".join(f"{x:.2f}" for x in r["alpha_plain_over_true"]) for n, r in rows.items()))
+    print("RESULT " + json.dumps({"ticks": args.ticks, "seed": 3, "joints": rows}, sort_keys=True, default=float))
+
+
+if __name__ == "__main__":
+    main()
