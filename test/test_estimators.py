@@ -50,8 +50,15 @@ def test_observer_keeps_the_disturbance_state_at_zero():
     # gains that estimate d (a model file written before the fix) are refused, not used
     g = np.array(e.gain)
     g[:, 3, 0] = 1e-3
+    old = Estimator("observer", 20, tuple(tuple(tuple(r) for r in L) for L in g))
     with pytest.raises(ReachsetError, match="disturbance state"):
-        Estimator("observer", 20, tuple(map(tuple, map(lambda L: map(tuple, L), g)))).estimate(p, y, u, np.arange(60, 70))
+        old.estimate(p, y, u, np.arange(60, 70))
+    d = {"format": mdl.FORMAT, "plant": {"kind": "lwa4p_joint", "dt": 0.004}, "estimator": old.as_dict(),
+         "horizon": 40, "joints": {"j": {"alpha_w": [1.0, 1.0], "alpha_v": [1e-4]}}}
+    with pytest.raises(ReachsetError, match="^old.yaml: observer estimator: its gains estimate the disturbance"):
+        mdl.from_dict(d, "old.yaml")
+    d["estimator"] = e.as_dict()
+    assert mdl.from_dict(d, "new.yaml").estimator == e
 
 
 def test_observer_estimator_sets_contain_the_measured_tracking_error():

@@ -89,6 +89,13 @@ class Estimator:
             raise ReachsetError("observer estimator: gains must be `window` matrices of finite numbers")
         return cls("observer", w, _tuple3(G))
 
+    def validate(self, plant):
+        """Raise :class:`ReachsetError` if the ``observer``'s gains cannot be used with ``plant``
+        (wrong shape, or they estimate a state the closed-loop sets assume zero, see
+        :func:`observer_gains`); model files are checked on loading."""
+        if self.name == "observer":
+            _observer_gains_for(plant, self.window, self.gain)
+
     def estimate_latest(self, plant, y_hist, u_hist):
         """Initial states of test cases starting at the newest sample of each row.
 
@@ -245,6 +252,20 @@ def observer_gains(plant, window, noise_ratio=1e-4, p0=1e4):
     return G
 
 
+def _observer_gains_for(plant, window, gains):
+    """The ``observer``'s gains as an array, checked against ``plant``; ``(G, pinned)``."""
+    G = np.array(gains, dtype=np.float64)
+    n, ny = plant.A.shape[0], plant.C.shape[0]
+    if G.shape != (window, n, ny):
+        raise ReachsetError(f"observer estimator: gains have shape {G.shape}, the plant and window need "
+                            f"({window}, {n}, {ny})")
+    pinned = list(pinned_states(plant))
+    if np.any(G[:, pinned, :] != 0.0):
+        raise ReachsetError("observer estimator: its gains estimate the disturbance state, which the closed-loop "
+                            "sets assume zero (a model identified before this was fixed); identify again")
+    return G, pinned
+
+
 def _observer(plant, y, u, m, window, gains):
     """Kalman predictor over y[m-window .. m-1], u[m-window .. m-1]; returns x_hat[m | m-1].
 
@@ -255,15 +276,7 @@ def _observer(plant, y, u, m, window, gains):
     result for one test case does not depend on how many are computed together (batch
     check and monitor agree to the bit). Causal: it reads only samples before m.
     """
-    G = np.array(gains, dtype=np.float64)
-    n, ny = plant.A.shape[0], plant.C.shape[0]
-    if G.shape != (window, n, ny):
-        raise ReachsetError(f"observer estimator: gains have shape {G.shape}, the plant and window need "
-                            f"({window}, {n}, {ny})")
-    pinned = list(pinned_states(plant))
-    if np.any(G[:, pinned, :] != 0.0):
-        raise ReachsetError("observer estimator: its gains estimate the disturbance state, which the closed-loop "
-                            "sets assume zero (a model identified before this was fixed); identify again")
+    G, pinned = _observer_gains_for(plant, window, gains)
     m = np.asarray(m)
     hasD = bool(np.any(plant.D))
     P = np.linalg.pinv(plant.C)

@@ -159,6 +159,10 @@ def from_dict(d, source="model") -> ConformanceModel:
         raise ReachsetError(f"{source}: unknown format {d.get('format')!r}, expected {FORMAT}")
     plant = plant_from_spec(d.get("plant"))
     est = Estimator.from_dict(d.get("estimator", {"name": "fd"}))
+    try:
+        est.validate(plant)
+    except ReachsetError as e:
+        raise ReachsetError(f"{source}: {e}") from None
     horizon = _int(d.get("horizon", 125), "horizon")
     if not 0 <= horizon <= MAX_HORIZON:
         raise ReachsetError(f"{source}: horizon must be in [0, {MAX_HORIZON}], got {horizon}")
