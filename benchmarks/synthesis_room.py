@@ -10,8 +10,14 @@ joint ``||R*_e||`` (Appendix B method 3, every tick) of
   paper's parametrisation);
 * ``free4``: omega, zeta, h1, h2 free (``--free omega,zeta,h1,h2``);
 * ``observer``: the default search with the ``observer`` initial-state estimator (d held at 0);
+* ``initial_set``: the default search with Theorem 1's initial-state set
+  (``--initial-state-set``: the ``fd`` estimate's error as a set of the same noise and disturbances);
 * ``oracle``: the true disturbance sets (the scenario's bounds; not conformance-identified)
   at the plain pipeline's gains - the room there is in the sets, not in the search.
+
+And, at the recordings' own gains (``reidentify``), how far the measured tracking error
+``[q_hat - q_d, qd_hat - qd_d]`` (after 2 s) reaches into ``R*_e`` (largest |e - c| / radius per
+coordinate; above 1 = outside) for the paper's rows and for the initial-state set.
 
 Syntax::
 
@@ -27,6 +33,7 @@ import time
 
 import numpy as np
 
+from reachset_ros import conformance as cf
 from reachset_ros import synthesis as sy
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.sim import recordings as sr
@@ -47,8 +54,10 @@ def main(argv=None):
     um = {j: sy.u_max_for(cfg, j) for j in JOINTS}
     pb_fd = sy.problems_from_series(series, plant, Estimator("fd"), 125, um, 2.0, refs, 3)
     pb_ob = sy.problems_from_series(series, plant, Estimator.observer(plant), 125, um, 2.0, refs, 3)
+    pb_is = sy.problems_from_series(series, plant, Estimator("fd"), 125, um, 2.0, refs, 3,
+                                    thm=cf.Theorem1.build(plant, 125, Estimator("fd")))
     rows = {}
-    for i, (pf, po) in enumerate(zip(pb_fd, pb_ob)):
+    for i, (pf, po, pi) in enumerate(zip(pb_fd, pb_ob, pb_is)):
         r = {}
         space = sy.SearchSpace.from_config(cfg, "hg")
         ev = Evaluator(pf, space, None, 0.999)
@@ -62,7 +71,7 @@ def main(argv=None):
         r["plain"] = {"re_norm": best.merit, "omega": best.values["omega"], "zeta": best.values["zeta"],
                       "seconds": time.perf_counter() - t}
         for name, pb, free in (("default", pf, None), ("free4", pf, ["omega", "zeta", "h1", "h2"]),
-                               ("observer", po, None)):
+                               ("observer", po, None), ("initial_set", pi, None)):
             sp = sy.SearchSpace.from_config(cfg, "hg", free=free)
             t = time.perf_counter()
             res = sy.synthesize([pb], sp, with_separate=False)[pb.name]
@@ -76,20 +85,34 @@ def main(argv=None):
         eo = Evaluator(pf, space, true, 0.999)(best.values)
         r["oracle"] = {"re_norm": eo.merit if eo.feasible else None, "alpha_true": true.tolist()}
         r["alpha_plain_over_true"] = (np.asarray(best.alpha) / true).tolist()
+        iq, iqd = rec.estimate_names.index("q"), rec.estimate_names.index("qd")
+        err = np.column_stack([rec.x_hat[:, iq] - rec.q_d, rec.x_hat[:, iqd] - rec.qd_d])[500:]
+        for name, pb in (("paper", pf), ("initial_set", pi)):
+            res = sy.reidentify(pb, sr.DEFAULT_GAINS)
+            reach = np.abs(err - np.asarray(res.re_center)).max(axis=0) / np.asarray(res.re_radius)
+            r[f"reach_{name}"] = {"re_norm": res.re_norm, "reach": reach.tolist(), "conformant": bool(res.conformant)}
         rows[pf.name] = r
         print(f"[synthesis_room] {pf.name} done", flush=True)
-    print("| joint | plain | default | free4 (omega, zeta, h1, h2) | observer estimator | oracle sets | "
-          "default/plain | free4/plain | observer/plain | oracle/plain |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| joint | plain | default | free4 (omega, zeta, h1, h2) | observer estimator | initial-state set | "
+          "oracle sets | default/plain | free4/plain | observer/plain | initial-state set/plain | oracle/plain |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n, r in rows.items():
         p = r["plain"]["re_norm"]
         o = r["oracle"]["re_norm"]
         print(f"| {n} | {p:.4f} | {r['default']['re_norm']:.4f} | {r['free4']['re_norm']:.4f} | "
-              f"{r['observer']['re_norm']:.4f} | {o:.4f} | {r['default']['re_norm'] / p:.3f} | "
-              f"{r['free4']['re_norm'] / p:.3f} | {r['observer']['re_norm'] / p:.3f} | {o / p:.3f} |")
-    print("| seconds per joint (mean) | " + " | ".join(
-        f"{np.mean([r[k]['seconds'] for r in rows.values()]):.1f}" for k in ("plain", "default", "free4", "observer"))
-        + " | | | | | |")
+              f"{r['observer']['re_norm']:.4f} | {r['initial_set']['re_norm']:.4f} | {o:.4f} | "
+              f"{r['default']['re_norm'] / p:.3f} | {r['free4']['re_norm'] / p:.3f} | "
+              f"{r['observer']['re_norm'] / p:.3f} | {r['initial_set']['re_norm'] / p:.3f} | {o / p:.3f} |")
+    print("\nseconds per joint (mean): " + ", ".join(
+        f"{k} {np.mean([r[k]['seconds'] for r in rows.values()]):.1f}"
+        for k in ("plain", "default", "free4", "observer", "initial_set")))
+    print("\n| joint | R*_e at the recording's gains, paper rows | reach of the measured error (q, qd) | "
+          "initial-state set | reach (q, qd) |")
+    print("|---|---|---|---|---|")
+    for n, r in rows.items():
+        a, b = r["reach_paper"], r["reach_initial_set"]
+        print(f"| {n} | {a['re_norm']:.4f} | {a['reach'][0]:.3f}, {a['reach'][1]:.3f} | {b['re_norm']:.4f} | "
+              f"{b['reach'][0]:.3f}, {b['reach'][1]:.3f} |")
     print("alpha of the plain optimum / true alpha (W1, W2, V): " + "; ".join(
         f"{n}: " + ", ".join(f"{x:.2f}" for x in r["alpha_plain_over_true"]) for n, r in rows.items()))
     print("RESULT " + json.dumps({"ticks": args.ticks, "seed": 3, "joints": rows}, sort_keys=True, default=float))

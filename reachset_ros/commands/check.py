@@ -2,7 +2,7 @@
 
 Exit status: 0 conformant, 1 not conformant (so it can gate a CI job), 2 bad input."""
 from ..conformance import model as mdl
-from ..conformance.theorem1 import Theorem1, check, deviation_extremes
+from ..conformance.theorem1 import check, deviation_extremes
 from ..errors import ReachsetError
 from ..plots import plot_deviations
 from . import emit
@@ -31,7 +31,7 @@ def run(args):
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
                                  topics=topics_of(args), options=reader_options(args))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
-    thm = Theorem1.build(model.plant, model.horizon)
+    thm = model.theorem1()
     joints = {}
     for name, s in series.items():
         if name not in model.joints:

@@ -60,6 +60,10 @@ def add_arguments(p):
     p.add_argument("--out", help="write the model YAML here")
     p.add_argument("--estimator", default="fd", choices=sorted(ESTIMATORS),
                    help="initial-state estimator of the test cases (stored in the model)")
+    p.add_argument("--initial-state-set", action="store_true",
+                   help="Theorem 1 with the estimator's initial-state error as a set made of the same noise and "
+                        "disturbances (not charged to the test case's W and V; much smaller sets; docs/theory.md); "
+                        "stored in the model, which the monitor then checks the same way")
     p.add_argument("--centers", default="zero", choices=["zero", "free"],
                    help="set centers fixed at 0 (paper) or identified")
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
@@ -204,7 +208,10 @@ def run(args):
         vseries, vreport = load_series(args.validate, list(series), args.dt, topics=topics_of(args),
                                        options=opts)
         require_horizon(vseries, est.history, args.horizon, args.validate)
-    results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower,
+    if args.initial_state_set and args.method == "corollary1":
+        raise ReachsetError("--initial-state-set works with --method theorem1 only")
+    thm = Theorem1.build(plant, args.horizon, est if args.initial_state_set else None)
+    results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower, thm=thm,
                                    cost=args.cost, method=args.method)
     joints, js = {}, {}
     for name, (sets, dev, settled) in results.items():
@@ -229,7 +236,8 @@ def run(args):
             js[name]["calibration"] = c
         inflation = max(c["inflation"] for c in calib.values())
     result = {"inflation": inflation, "joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
-              "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak}
+              "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak,
+              "initial_state_set": bool(args.initial_state_set)}
     if vseries is not None:
         inflation, val = validate(plant, est, args.horizon, thm, joints, vseries, grid, args.fault_accel)
         for name, v in val.items():
@@ -247,7 +255,7 @@ def run(args):
                                    "inflation": {n: c["inflation"] for n, c in calib.items()},
                                    "flagged": [n for n, c in calib.items() if c["flagged"]]}
         m = mdl.ConformanceModel(plant, {"kind": "lwa4p_joint", "dt": args.dt}, est, args.horizon, joints,
-                                 inflation, prov, k_min, weak)
+                                 inflation, prov, k_min, weak, bool(args.initial_state_set))
         mdl.save(m, out)
         result["model"] = str(out)
     lines = [f"{n}: alpha_w={v['alpha_w']} alpha_v={v['alpha_v']} test_cases={v['test_cases']} "

@@ -14,7 +14,6 @@ import numpy as np
 from ..conformance import model as mdl
 from ..conformance.kernels import test_case_starts
 from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
-from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
@@ -94,7 +93,7 @@ def run(args):
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
                                  topics=topics_of(args), options=reader_options(args))
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
-    thm = Theorem1.build(model.plant, model.horizon)
+    thm = model.theorem1()
     missing = [n for n in series if n not in model.joints]
     if missing:
         raise ReachsetError(f"joint {missing[0]} is not in the model {args.model}")

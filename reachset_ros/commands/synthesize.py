@@ -63,6 +63,9 @@ def add_arguments(p):
                         "constrained by the data); recorded in the model file")
     p.add_argument("--estimator", default=None, choices=sorted(ESTIMATORS),
                    help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
+    p.add_argument("--initial-state-set", action="store_true", default=None,
+                   help="Theorem 1 with the estimator's initial-state error as a set (as identify; much smaller "
+                        "sets; docs/synthesis.md); reidentify: the model's choice")
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
                    help="lower bounds on [alpha_W..., alpha_V...]")
     p.add_argument("--reference-method", type=int, choices=[int(m) for m in ReferenceMethod],
@@ -177,7 +180,7 @@ def run(args):
                          reference_class=(None if args.reference_class is None
                                           else ReferenceClass.parse(args.reference_class)),
                          inflation=args.inflation, topics=topics_of(args),
-                         reader=reader_options(args))
+                         reader=reader_options(args), initial_state_set=args.initial_state_set)
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []

@@ -56,7 +56,7 @@ from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, minimum_
 from .model import ConformanceModel, JointSets
 from .monitor import FaultEvent, JointMonitor, Monitor, MonitorModel, TickEvent, TickResult
 from .theorem1 import (CheckResult, Deviations, Theorem1, check, combine, deviation_extremes,
-                       deviation_extremes_many, output_normals, xi_of)
+                       deviation_extremes_many, initial_error_maps, output_normals, xi_of)
 from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tick,
                          inject_acceleration_fault, validation_grid)
 
@@ -67,7 +67,7 @@ __all__ = [
     # estimators
     "Estimator", "ESTIMATORS",
     # theorem1
-    "output_normals", "Theorem1", "xi_of", "Deviations", "deviation_extremes",
+    "output_normals", "initial_error_maps", "Theorem1", "xi_of", "Deviations", "deviation_extremes",
     "deviation_extremes_many", "combine", "CheckResult", "check",
     # identify
     "IdentifiedSets", "z_to_xi", "z_bounds", "identification_constraints", "set_norm_cost", "make_sound",

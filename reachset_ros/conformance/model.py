@@ -66,6 +66,15 @@ class ConformanceModel:
     provenance: dict = field(default_factory=dict)
     minimum_horizon: int = None          # the plant's minimum k* (None: not recorded, older file)
     horizon_below_minimum: bool = False  # k* accepted below the minimum (a weaker guarantee)
+    initial_state_set: bool = False      # Theorem 1 with the estimator's error set (theorem1.Theorem1.build)
+
+    def theorem1(self):
+        """The Theorem-1 rows this model's sets were identified for and are checked with
+        (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`; with the estimator's
+        initial-state set if ``initial_state_set``): one place for identify, check, replay and
+        the monitor."""
+        from .theorem1 import Theorem1
+        return Theorem1.build(self.plant, self.horizon, self.estimator if self.initial_state_set else None)
 
     def with_joints(self, joints):
         return replace(self, joints=dict(joints))
@@ -148,6 +157,7 @@ def to_dict(model: ConformanceModel) -> dict:
         "provenance": model.provenance,
         **({"minimum_horizon": int(model.minimum_horizon)} if model.minimum_horizon is not None else {}),
         **({"horizon_below_minimum": True} if model.horizon_below_minimum else {}),
+        **({"initial_state_set": True} if model.initial_state_set else {}),
     }
 
 
@@ -195,8 +205,17 @@ def from_dict(d, source="model") -> ConformanceModel:
     below = d.get("horizon_below_minimum", False)
     if not isinstance(below, bool):
         raise ReachsetError(f"{source}: horizon_below_minimum must be true or false, got {below!r}")
+    iss = d.get("initial_state_set", False)
+    if not isinstance(iss, bool):
+        raise ReachsetError(f"{source}: initial_state_set must be true or false, got {iss!r}")
+    if iss:
+        try:
+            from .theorem1 import initial_error_maps
+            initial_error_maps(plant, est)
+        except ReachsetError as e:
+            raise ReachsetError(f"{source}: {e}") from None
     return ConformanceModel(plant, dict(d["plant"]), est, horizon, joints, inflation,
-                            d.get("provenance", {}) or {}, k_min, below)
+                            d.get("provenance", {}) or {}, k_min, below, iss)
 
 
 def load(path) -> ConformanceModel:

@@ -54,7 +54,6 @@ import numpy as np
 
 from . import kernels
 from .kernels import advance, matvec, matvec_into, matvec_plan, predict_output
-from .theorem1 import Theorem1
 
 
 @dataclass(frozen=True)
@@ -90,7 +89,7 @@ class MonitorModel:
 
     @classmethod
     def from_model(cls, model, joint, thm=None):
-        thm = thm or Theorem1.build(model.plant, model.horizon)
+        thm = thm or model.theorem1()
         offs = thm.offsets(model.joints[joint].xi(model.inflation))
         return cls(joint, model.plant, model.estimator, model.horizon, thm.normals,
                    tuple(o[0] for o in offs), tuple(o[1] for o in offs))

@@ -44,6 +44,64 @@ def output_normals(plant, horizon):
     return out
 
 
+def initial_error_maps(plant, estimator, tol=1e-9):
+    """How the estimator's initial-state error depends on the noise and disturbance samples it read.
+
+    For an estimator that is exact on noise-free model data (``fd`` with ``d = 0``), the
+    error of the test case's initial state is linear in the samples the estimator reads:
+    with ``h = estimator.history`` and the model ``x[t+1] = A x[t] + B u[t] + w[t]``,
+    ``y[t] = C x[t] + v[t]`` over ``t = m-h .. m``,
+
+        x[m] - x_hat[m] = sum_{t<h} Sw[t] w[m-h+t] + sum_{t<=h} Sv[t] v[m-h+t].
+
+    The maps are found by unit impulses through :meth:`Estimator.estimate` (the same code
+    the sweep and the monitor run). Returns ``(Sw, Sv)``: lists of ``(n, n)`` and ``(n, ny)``
+    arrays. Raises :class:`ReachsetError` if the estimator is not exact on noise-free model
+    data (error above ``tol`` times the data's size): then no such linear map exists.
+    """
+    h = int(estimator.history)
+    A, B, C = (np.asarray(getattr(plant, a), float) for a in ("A", "B", "C"))
+    n, ny, nu = A.shape[0], C.shape[0], B.shape[1]
+    T = h + 1
+    pinned = [i for i in range(n) if not np.any(np.hstack([np.linalg.matrix_power(A, j) @ np.hstack(
+        [B, np.asarray(plant.Gw, float)]) for j in range(n)])[i] != 0.0)]
+
+    def error(x0, u, w, v, scale=False):
+        X, y, x = np.zeros((T, n)), np.zeros((T, ny)), x0.copy()
+        for t in range(T):
+            X[t], y[t] = x, C @ x + v[t]
+            x = A @ x + B @ u[t] + w[t]
+        e = X[h] - estimator.estimate(plant, y, u, np.array([h]))[:, 0]
+        return (e, max(1.0, np.abs(X).max(), np.abs(u).max())) if scale else e
+
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        x0 = rng.standard_normal(n)
+        x0[pinned] = 0.0
+        e, size = error(x0, rng.standard_normal((T, nu)), np.zeros((T, n)), np.zeros((T, ny)), True)
+        if np.abs(e).max() > tol * size:
+            raise ReachsetError(f"the initial-state set needs an estimator that is exact on noise-free model data; "
+                                f"{estimator.name!r} is not (error {np.abs(e).max():.3g}); use 'fd'")
+    zero_u, zw, zv = np.zeros((T, nu)), np.zeros((T, n)), np.zeros((T, ny))
+    Sw = []
+    for t in range(h):
+        cols = []
+        for i in range(n):
+            w = zw.copy()
+            w[t, i] = 1.0
+            cols.append(error(np.zeros(n), zero_u, w, zv))
+        Sw.append(np.column_stack(cols))
+    Sv = []
+    for t in range(T):
+        cols = []
+        for i in range(ny):
+            v = zv.copy()
+            v[t, i] = 1.0
+            cols.append(error(np.zeros(n), zero_u, zw, v))
+        Sv.append(np.column_stack(cols))
+    return Sw, Sv
+
+
 @dataclass(frozen=True)
 class Theorem1:
     """The linear conformance constraints of Theorem 1 for a plant and horizon.
@@ -57,8 +115,28 @@ class Theorem1:
     Dm: tuple
 
     @classmethod
-    def build(cls, plant, horizon):
+    def build(cls, plant, horizon, initial=None):
+        """The rows for ``plant`` and ``horizon`` (eq. 13).
+
+        ``initial``: an :class:`~reachset_ros.conformance.estimators.Estimator` whose
+        initial-state error is part of the reachable set (the *initial-state set*, an
+        extension of the paper's eq. 13, which takes the estimated initial state as exact):
+
+            R_a[k] = C A^k E (+) (+)_{i<k} C A^i W (+) V,
+            E = (+)_t Sw[t] W (+) (+)_t Sv[t] V    (:func:`initial_error_maps`)
+
+        -- the error of the estimate made from the same kind of noise and disturbance
+        samples, which precede the test case and are therefore other samples than those of
+        the sum (the bound adds their absolute values, as for any other sample). Without it
+        (the paper, the default) the estimate's error must be explained by W and V of the
+        test case itself: for ``fd`` a velocity error up to ``2 alpha_V / dt`` that grows over
+        the horizon like a persistent velocity disturbance, charged to W1 and V. One-output
+        plants only.
+        """
         n, ny = plant.A.shape[0], plant.C.shape[0]
+        if initial is not None and ny != 1:
+            raise ReachsetError("the initial-state set is implemented for one-output plants only")
+        maps = initial_error_maps(plant, initial) if initial is not None else None
         normals = output_normals(plant, horizon)
         Dp, Dm = [], []
         sumE = np.zeros((ny, n))       # sum_{i<k} C A^i
@@ -75,6 +153,15 @@ class Theorem1:
             radV = np.abs(N @ plant.Gv)
             cW = N @ sumE
             cV = N
+            if maps is not None:            # C A^k E: the estimate's error propagated k steps
+                P = N @ plant.C @ np.linalg.matrix_power(plant.A, k)
+                Sw, Sv = maps
+                for S in Sw:
+                    radW = radW + np.abs(P @ S @ plant.Gw)
+                for S in Sv:
+                    radV = radV + np.abs(P @ S @ plant.Gv)
+                cW = cW + P @ sum(Sw, np.zeros((n, n)))
+                cV = cV + P @ sum(Sv, np.zeros((n, ny)))
             Dp.append(np.hstack([cW, cV, radW, radV]))
             Dm.append(np.hstack([-cW, -cV, radW, radV]))
             sumE = sumE + E

@@ -34,7 +34,6 @@ from std_srvs.srv import Trigger
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
-from ..conformance.theorem1 import Theorem1
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
 from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
@@ -92,7 +91,7 @@ class MonitorCore:
         missing = [j for j in self.joints if j not in model.joints]
         if missing:
             raise ReachsetError(f"joint {missing[0]} is not in the model")
-        thm = Theorem1.build(model.plant, model.horizon)
+        thm = model.theorem1()
         self.monitor = Monitor([MonitorModel.from_model(model, j, thm) for j in self.joints])
         self.wanted = set(self.joints)
         self.dt_ns = int(round(model.plant.dt * 1e9))

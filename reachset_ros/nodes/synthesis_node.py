@@ -242,14 +242,18 @@ class SynthesisNode(Node):
         else:
             cmd += ["--observer", self.get_parameter("observer").value]
         inflation = float(self.get_parameter("inflation").value)
-        if inflation < 0 and current and mode != "reidentify":
-            # default: the current model's inflation (calibrated on held-out data by
-            # `identify --validate`, or the one the gains were synthesised for); reidentify
-            # takes it from --model itself
+        if current and mode != "reidentify":
+            # the current model's Theorem-1 rows (initial-state set or not) and, by default, its
+            # inflation (calibrated on held-out data by `identify --validate`, or the one the
+            # gains were synthesised for); reidentify takes both from --model itself
             try:
-                inflation = float(mdl.load(current).inflation)
+                cur = mdl.load(current)
             except ReachsetError as e:
                 return False, f"the current model {current}: {e}", None, ""
+            if inflation < 0:
+                inflation = float(cur.inflation)
+            if cur.initial_state_set:
+                cmd += ["--initial-state-set"]
         if inflation >= 0:
             cmd += ["--inflation", repr(inflation)]
         cmd += [a for a in self.get_parameter("extra_args").value if a]

@@ -31,8 +31,11 @@ from .reference_error import ReferenceClass, ReferenceMethod
 def iterate(record, series, space, iterations=2, final_reidentify=True, plant=None, estimator=None,
             horizon=125, u_max=26.0, u_ff=2.0, search=None, seed=0,
             reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004, allow_weak_horizon=False,
-            reference_class=None):
+            reference_class=None, initial_state_set=False):
     """The paper's iterative procedure (Sec. III-D, Fig. 4).
+
+    ``initial_state_set``: Theorem 1 with the estimator's initial-state set (as
+    :func:`synthesize_bags`).
 
     Data without references need ``reference_class`` (:class:`ReferenceClass`, Appendix B).
 
@@ -63,7 +66,7 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
     plant = plant or lwa4p_joint_plant(dt=dt)
     estimator = estimator or Estimator("fd")
     cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
-    thm = cf.Theorem1.build(plant, horizon)
+    thm = cf.Theorem1.build(plant, horizon, estimator if initial_state_set else None)
     history = []
     data, refs = _as_series(series, dt)
     prev = None
@@ -126,6 +129,7 @@ class BagSynthesis:
     horizon_below_minimum: bool = False  # k* accepted below it (allow_weak_horizon)
     reference_class: object = None      # ReferenceClass used instead of/over the recorded references
     inflation: float = 0.0              # the model's inflation: R*_e, R*_u are for the inflated sets
+    initial_state_set: bool = False     # Theorem 1 with the estimator's initial-state set (Theorem1.build)
 
     def as_dict(self):
         d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
@@ -133,7 +137,7 @@ class BagSynthesis:
              "horizon": self.horizon, "minimum_horizon": self.minimum_horizon,
              "horizon_below_minimum": self.horizon_below_minimum,
              "reference_class": self.reference_class.as_dict() if self.reference_class is not None else None,
-             "inflation": float(self.inflation)}
+             "inflation": float(self.inflation), "initial_state_set": bool(self.initial_state_set)}
         if self.space is not None:
             d.update(observer=self.space.observer, controller=self.space.controller, free=list(self.space.free),
                      search_box={n: list(self.space.bounds[n]) for n in self.space.free})
@@ -148,7 +152,7 @@ class BagSynthesis:
                                       {"reference_error": r.reference, "conformant": r.conformant})
         return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints,
                                     float(self.inflation), mdl.provenance(self.bags, command), self.minimum_horizon,
-                                    self.horizon_below_minimum)
+                                    self.horizon_below_minimum, bool(self.initial_state_set))
 
 
 def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controller=None, free=None, fix=None,
@@ -156,7 +160,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
                     dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None,
-                    reader=None):
+                    reader=None, initial_state_set=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -187,6 +191,10 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         The monitor checks the sets scaled by ``1 + inflation``; R*_u inside U_p is enforced
         and R*_e reported for those sets, and the model records it. Default 0 (reidentify: the
         model's).
+    initial_state_set : bool, optional
+        Theorem 1 with the estimator's initial-state set
+        (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`); recorded in the model.
+        Default false (reidentify: the model's).
 
     Returns
     -------
@@ -212,6 +220,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                 raise ReachsetError(f"joint {n} is not in the model {model}")
         space = None
         inflation = base.inflation if inflation is None else inflation
+        initial_state_set = base.initial_state_set if initial_state_set is None else initial_state_set
     else:
         if model:
             raise ReachsetError("a model file is only used with mode reidentify")
@@ -259,11 +268,13 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         raise ReachsetError(f"seed must be >= 0, got {seed}")
     refs = read_references(list(bags), names, plant.dt)
     classes = _reference_classes(names, refs, reference_class, model_classes, bags)
+    initial_state_set = bool(initial_state_set)
+    thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
     problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
-                                    reference_class=classes, inflation=inflation)
+                                    thm=thm, reference_class=classes, inflation=inflation)
     results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
     return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
-                        int(reference_method), bags, k_min, weak, reference_class, inflation)
+                        int(reference_method), bags, k_min, weak, reference_class, inflation, initial_state_set)
 
 
 def _reference_classes(names, refs, reference_class, model_classes, bags):
