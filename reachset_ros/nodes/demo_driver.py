@@ -13,6 +13,9 @@ phase's real-time factor (simulated / wall time) is reported.
 """
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -29,8 +32,9 @@ from std_srvs.srv import Trigger
 
 from .. import launch
 from ..conformance import model as mdl
-from ..robot.dynamics import JOINT_NAMES
-from ..synthesis.config import config_path
+from ..robot.dynamics import JOINT_NAMES, U_REF
+from ..robot.lwa4p import default_nominal_path
+from ..synthesis.config import config_path, load_config
 from ..systems.gains import certified_inflation
 from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
 
@@ -131,11 +135,20 @@ class DemoDriver(Node):
 
 def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
              seed: int = 1, log=print, fault=("acceleration", "arm_1_joint", 30.0), initial=None,
-             inflation=1.0, settle=3.0, stop=None):
+             inflation=None, settle=3.0, stop=None):
     """Run the demo; returns a dict of what happened (stamps in ns of the stamp clock).
 
+    The simulated arm is the LWA-4P calibrated to the real one (``sim_node`` ``calibrated``;
+    the controller linearizes with the identified nominal model). The synthesis bounds the
+    reference error over the reference generator's whole class (``--reference-class
+    qdd_max=U_REF``, Appendix B), so ``R*_e`` covers the monitored run's motions, which the
+    training runs did not record.
+
     ``inflation``: the monitor checks against the identified sets scaled by ``1 + inflation``
-    (the model's ``inflation``). ``stop``: a :class:`reachset_ros.launch.StopRequest`; once it
+    (the model's ``inflation``). None (default): calibrated by 2-fold cross-validation on the
+    two training recordings (``reachset identify BAG1 BAG2 --calibrate 2``,
+    :mod:`reachset_ros.conformance.calibration`), and the second synthesis is certified for
+    it. ``stop``: a :class:`reachset_ros.launch.StopRequest`; once it
     has a signal, the next spin raises :class:`reachset_ros.launch.Interrupted` and every node
     started is stopped before it propagates. The nodes run in this process' ``ROS_DOMAIN_ID``
     (``reachset demo`` sets a fresh one)."""
@@ -151,20 +164,28 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         # the initial gains run before any model exists (identification data): explicitly
         # uncertified; the synthesised gains are certified against the synthesised model
         common = {"joints": JOINTS, "allow_uncertified": True}
-        launch.start("sim_node", {"seed": seed, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir,
+        launch.start("sim_node", {"seed": seed, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir,
                      group=procs)
         launch.start("reference_node", {"seed": seed}, workdir, group=procs)
         launch.start("observer_node", {**common, **initial}, workdir, group=procs)
-        launch.start("controller_node", {**common, **initial, "wait_for_monitor": True}, workdir, group=procs)
+        launch.start("controller_node", {**common, **initial, "wait_for_monitor": True,
+                                         "robot_params": str(default_nominal_path())}, workdir, group=procs)
         launch.start("monitor_node", {"window_dir": str(workdir / "windows"), "max_missing_ticks": 125},
                      workdir, group=procs)
         cfg = config_path()
         demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
-        extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else [""]
+        extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else []
+        # R*_e and R*_u for every reference the reference node can send (its U_ref), not only the
+        # recorded ones: the monitored run's motions are new samples of that class
+        extra += ["--reference-class", f"qdd_max={U_REF:g}"]
+        used_cfg = load_config(demo_cfg if demo_cfg is not None and demo_cfg.is_file() else None)
+        hg = used_cfg["structures"]["hg"]
+        out["search_box"] = {n: [float(x) for x in hg["bounds"][n]] for n in hg["free"]}
         # the gains are synthesised for the sets the monitor will check (inflated by 1 + inflation),
-        # so R*_u inside U_p is certified for them (synthesize --inflation)
+        # so R*_u inside U_p is certified for them (synthesize --inflation); the first synthesis,
+        # before the inflation is calibrated, for the sets as identified
         launch.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra,
-                                        "inflation": float(inflation)}, workdir, group=procs)
+                                        "inflation": float(inflation or 0.0)}, workdir, group=procs)
 
         def record_phase(name, seconds, topics, path):
             node = "recorder_node_" + name.replace(" ", "_")
@@ -207,6 +228,12 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         rec, _ = record_phase("new gains", train, CORE_TOPICS, bag2)
         timed("new gains", train)
         launch.stop([rec])
+        if inflation is None:
+            inflation, out["inflation_calibration"] = calibrate_inflation([bag1, bag2], workdir)
+            log(f"[demo] inflation calibrated by 2-fold cross-validation on the training recordings: {inflation:g}")
+            ok, why = set_remote_parameters(driver, "synthesis_node", {"inflation": float(inflation)})
+            if not ok:
+                raise RuntimeError(f"synthesis node: {why}")
         log("[demo] synthesis node: second iteration, combined synthesis on both recordings")
         req = Synthesize.Request(bags=[str(bag1), str(bag2)], joints=JOINTS, mode="combined", apply=True)
         res2 = driver.call(Synthesize, "/synthesis_node/synthesize", req)
@@ -279,6 +306,23 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
         driver.destroy_node()
         if own:
             rclpy.try_shutdown()
+
+
+def calibrate_inflation(bags, workdir):
+    """The monitor's inflation from the training recordings alone: ``reachset identify BAGS
+    --calibrate 2 --json`` (each recording a fold: the sets identified on one must hold on the
+    other, :func:`reachset_ros.conformance.calibration.cross_validate`). Returns
+    ``(inflation, details)``; a flagged joint (no grid value held) is reported, and its
+    largest grid value is used."""
+    cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", "2", "--json"]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    (Path(workdir) / "calibration.log").write_text(p.stderr)
+    if p.returncode != 0:
+        raise RuntimeError("inflation calibration failed: " + ((p.stderr.strip().splitlines() or ["?"])[-1]))
+    r = json.loads(p.stdout)
+    per = {n: float(j["inflation"]) for n, j in r["joints"].items()}
+    flagged = [n for n, j in r["joints"].items() if j["calibration"].get("flagged")]
+    return float(r["inflation"]), {"folds": 2, "command": " ".join(cmd[2:]), "per_joint": per, "flagged": flagged}
 
 
 def _result_dict(res):

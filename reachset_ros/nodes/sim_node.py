@@ -61,6 +61,11 @@ class SimNode(Node):
         self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True,
                                                read_only=True))
         self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise", read_only=True))
+        self.declare_parameter("calibrated", False,
+                               desc("the simulated LWA-4P calibrated to the real one (SimConfig.calibrated: the "
+                                    "identified nominal model with per-joint friction error and noise; the "
+                                    "controller's robot_params must then be config/lwa4p_nominal.yaml); "
+                                    "takes precedence over realistic", read_only=True))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0, read_only=True))
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
@@ -75,8 +80,12 @@ class SimNode(Node):
         seed = int(self.get_parameter("seed").value)
         dt = float(self.get_parameter("dt").value)
         start_ns = time.time_ns() // 1_000_000 * 1_000_000
-        cfg = (sim.SimConfig.realistic(seed=seed, dt=dt, start_ns=start_ns)
-               if self.get_parameter("realistic").value else sim.SimConfig.ideal(dt=dt, start_ns=start_ns))
+        if self.get_parameter("calibrated").value:
+            cfg = sim.SimConfig.calibrated(dt=dt, start_ns=start_ns)
+        elif self.get_parameter("realistic").value:
+            cfg = sim.SimConfig.realistic(seed=seed, dt=dt, start_ns=start_ns)
+        else:
+            cfg = sim.SimConfig.ideal(dt=dt, start_ns=start_ns)
         self.arm = sim.SimulatedArm(cfg, seed=seed)
         rc = ReferenceConfig()
         q0 = 0.5 * (rc.q_min + rc.q_max)

@@ -146,7 +146,7 @@ class SimConfig:
         error per joint, and measurement noise per joint, chosen so that the sets identified
         from simulated runs of the real recordings' own trajectories are within a factor 1.5
         of those identified from the real runs (Theorem 1, k* = 125, estimator fd): measured
-        1.11 on the 75 training runs it was fitted on, 1.35 on the 25 held-out runs
+        1.11 on the 75 training runs it was fitted on, 1.37 on the 25 held-out runs
         (docs/robot.md)."""
         from ..robot.lwa4p import load_nominal      # the shipped identified model
         f = np.asarray(cls.CALIBRATED_FRICTION_ERROR)
