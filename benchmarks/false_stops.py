@@ -33,7 +33,7 @@ from std_srvs.srv import Trigger
 
 from reachset_ros import launch
 from reachset_ros.domain import pick_domain_id
-from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters
+from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters, stamp_ns
 from reachset_ros.nodes.demo_driver import CORE_TOPICS, JOINTS, DemoDriver
 
 LISTENER = """
@@ -147,7 +147,9 @@ def main():
         out.update({
             "simulated_minutes": (driver.sim_now() - sim0) / 60e9, "wall_minutes": (time.monotonic() - wall0) / 60,
             "status_messages": len(statuses), "conformant_share": sum(statuses) / max(len(statuses), 1),
-            "safe_stops": [{"kind": s.kind, "reason": s.reason} for s in driver.stops if s.active],
+            # the monitor repeats an active stop every tick until a reset: one entry per stop
+            "safe_stops": list({(stamp_ns(s.header.stamp), s.kind, s.reason): {"kind": s.kind, "reason": s.reason}
+                                for s in driver.stops if s.active}.values()),
             "synthesis_runs_completed": synth["runs"], "synthesis_runs_failed": synth["failed"],
             "load_average_1min_max": max(loads, default=0.0),
             "load_average_1min_mean": sum(loads) / max(len(loads), 1)})

@@ -154,6 +154,13 @@ class Bus:
     def active_stops(self):
         return [s for s in list(self.stops) if s.active]
 
+    def distinct_active_stops(self):
+        """The active stops without the monitor's repeats (same stamp, kind, joint, reason)."""
+        seen = {}
+        for s in self.active_stops():
+            seen.setdefault((stamp_ns(s.header.stamp), s.kind, s.joint, s.reason), s)
+        return list(seen.values())
+
     def statuses(self, ts):
         lo, hi = ts[0], ts[-1]
         return [s for s in list(self.status) if lo <= stamp_ns(s.header.stamp) <= hi]

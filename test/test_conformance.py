@@ -208,6 +208,20 @@ def write_bag(path, y, u, names, stamps, shuffle_names=False, extra_joint=False)
                                                        [u[i, j] for j in order]), recv + 1000)
 
 
+def fault_check_equals_replay(tmp_path, y, u, names, model):
+    """A constant acceleration from tick 2000 on the first joint: ``reachset check`` (batch)
+    and ``reachset replay`` (the monitor's code path) flag exactly the same ticks."""
+    yf = y.copy()
+    yf[2000:, 0] += 0.5 * 20.0 * (0.004 * np.arange(len(y) - 2000)) ** 2
+    faulty = tmp_path / "faulty"
+    write_bag(faulty, yf, u, names, T0 + DT_NS * np.arange(len(y)))
+    chk = json.loads(run_cli("check", faulty, "--model", model, "--json").stdout)
+    rep = json.loads(run_cli("replay", faulty, "--model", model, "--json").stdout)
+    assert not chk["conformant"] and chk["joints"][names[0]]["violations"] > 0
+    for k in ("violations", "first_violation_ns", "test_cases", "checks"):
+        assert chk["joints"][names[0]][k] == rep["joints"][names[0]][k], k
+
+
 def run_cli(*args):
     out = subprocess.run([sys.executable, "-m", "reachset_ros.cli", *map(str, args)],
                          capture_output=True, text=True, timeout=300)

@@ -11,7 +11,7 @@ from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.errors import ReachsetError
 from reachset_ros.sim import recordings as sr
 from reachset_ros.systems.plant import lwa4p_joint_plant
-from test_conformance import DT_NS, T0, run_cli, simulate, write_bag
+from test_conformance import DT_NS, T0, fault_check_equals_replay, run_cli, simulate, write_bag
 
 AW, AV = np.array([0.03, 3.0]), np.array([3.5e-5])
 
@@ -64,15 +64,7 @@ def test_cli_identify_check_replay_with_the_initial_state_set(tmp_path):
     chk = json.loads(run_cli("check", bag, "--model", model, "--json").stdout)
     assert chk["conformant"]
     # a fault: the batch check and the monitor's code path flag exactly the same ticks
-    yf = y.copy()
-    yf[2000:, 0] += 0.5 * 20.0 * (0.004 * np.arange(1000)) ** 2
-    faulty = tmp_path / "faulty"
-    write_bag(faulty, yf, u, names, T0 + DT_NS * np.arange(3000))
-    chk = json.loads(run_cli("check", faulty, "--model", model, "--json").stdout)
-    rep = json.loads(run_cli("replay", faulty, "--model", model, "--json").stdout)
-    assert not chk["conformant"] and chk["joints"]["arm_1_joint"]["violations"] > 0
-    for k in ("violations", "first_violation_ns", "test_cases", "checks"):
-        assert chk["joints"]["arm_1_joint"][k] == rep["joints"]["arm_1_joint"][k], k
+    fault_check_equals_replay(tmp_path, y, u, names, model)
     # an estimator without error maps: one line, exit 2, nothing written
     bad = tmp_path / "bad.yaml"
     r = run_cli("identify", bag, "--horizon", "40", "--initial-state-set", "--estimator", "observer", "--out", bad)

@@ -70,6 +70,9 @@ def test_monitor_lifecycle(ros, tmp_path):
         assert not transition(ros, "bad_mon", Transition.TRANSITION_CONFIGURE)
         assert state(ros, "bad_mon") == State.PRIMARY_STATE_UNCONFIGURED
         assert "configure failed" in bad.log.read_text() and "missing.yaml" in bad.log.read_text()
+        # an unconfigured monitor repeats its latched stop every tick (issue 17.2): it would hold
+        # a robot; it goes before the other one's /safe_stop states are read
+        launch.stop([bad])
 
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_UNCONFIGURED
         stops = rec.msgs["safe_stop"]

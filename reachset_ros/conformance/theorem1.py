@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ReachsetError
 from ..sets.zonotope import halfspace_normals
+from .estimators import pinned_states
 from .kernels import as_2d, matvec, sweep
 
 
@@ -63,8 +64,10 @@ def initial_error_maps(plant, estimator, tol=1e-9):
     A, B, C = (np.asarray(getattr(plant, a), float) for a in ("A", "B", "C"))
     n, ny, nu = A.shape[0], C.shape[0], B.shape[1]
     T = h + 1
-    pinned = [i for i in range(n) if not np.any(np.hstack([np.linalg.matrix_power(A, j) @ np.hstack(
-        [B, np.asarray(plant.Gw, float)]) for j in range(n)])[i] != 0.0)]
+    try:                                      # the closed-loop sets hold these at zero
+        pinned = list(pinned_states(plant))
+    except ReachsetError:                     # not single coordinates: the exactness check decides
+        pinned = []
 
     def error(x0, u, w, v, scale=False):
         X, y, x = np.zeros((T, n)), np.zeros((T, ny)), x0.copy()
@@ -83,22 +86,16 @@ def initial_error_maps(plant, estimator, tol=1e-9):
             raise ReachsetError(f"the initial-state set needs an estimator that is exact on noise-free model data; "
                                 f"{estimator.name!r} is not (error {np.abs(e).max():.3g}); use 'fd'")
     zero_u, zw, zv = np.zeros((T, nu)), np.zeros((T, n)), np.zeros((T, ny))
-    Sw = []
-    for t in range(h):
-        cols = []
-        for i in range(n):
-            w = zw.copy()
-            w[t, i] = 1.0
-            cols.append(error(np.zeros(n), zero_u, w, zv))
-        Sw.append(np.column_stack(cols))
-    Sv = []
-    for t in range(T):
-        cols = []
-        for i in range(ny):
-            v = zv.copy()
-            v[t, i] = 1.0
-            cols.append(error(np.zeros(n), zero_u, zw, v))
-        Sv.append(np.column_stack(cols))
+
+    def unit(shape, t, i):
+        a = np.zeros(shape)
+        a[t, i] = 1.0
+        return a
+
+    Sw = [np.column_stack([error(np.zeros(n), zero_u, unit(zw.shape, t, i), zv) for i in range(n)])
+          for t in range(h)]
+    Sv = [np.column_stack([error(np.zeros(n), zero_u, zw, unit(zv.shape, t, i)) for i in range(ny)])
+          for t in range(T)]
     return Sw, Sv
 
 

@@ -10,7 +10,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, Parameter, Par
 from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from ..errors import ReachsetError
@@ -20,9 +21,24 @@ try:
 except ImportError:  # an rclpy older than Jazzy's 7.1.x: make_executor falls back
     EventsExecutor = None
 
-#: /safe_stop: reliable + transient local, so late subscribers (a restarted controller) see it.
+#: Liveliness lease of every /safe_stop publisher (DDS asserts it automatically while the
+#: process runs): a monitor that died or froze is "not alive" this long after, and the
+#: controller stops (issue 17.2). 1 s: with 0.5 s a monitor starved of CPU for a moment on
+#: the 2-core machine (the demo's calibration running beside it) was once reported lost.
+MONITOR_LEASE_S = 1.0
+
+#: /safe_stop: reliable + transient local, so late subscribers (a restarted controller) see it;
+#: automatic liveliness with a lease of MONITOR_LEASE_S (publishers offer it, the controller
+#: requests it: a publisher with a longer or no lease does not match, so it cannot pose as the
+#: monitor).
 SAFE_STOP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL, history=HistoryPolicy.KEEP_LAST)
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL, history=HistoryPolicy.KEEP_LAST,
+                           liveliness=LivelinessPolicy.AUTOMATIC,
+                           liveliness_lease_duration=Duration(seconds=MONITOR_LEASE_S))
+
+#: The reason of the state a monitor publishes when it starts (no stop active): it releases a
+#: controller waiting for the monitor, but not a stop of the controller's own.
+MONITOR_STARTED = "monitor started: no safe stop active"
 #: per-tick data: reliable, a few ticks of history.
 TICK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)

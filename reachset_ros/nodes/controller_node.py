@@ -38,6 +38,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from reachset_msgs.msg import BrakeCommand, JointEstimate, JointReference, PlantInput, SafeStop
 from std_msgs.msg import Float64MultiArray
@@ -46,7 +47,7 @@ from ..conformance import model as mdl
 from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems.stopping import StopPolicy, StopState, stop_tick
-from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
+from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, proposed_values,
                           validate_pair)
 
@@ -113,7 +114,11 @@ class ControllerNode(Node):
         self.brake_pub = self.create_publisher(BrakeCommand, "brake_command", TICK_QOS)
         self.create_subscription(JointEstimate, "observer/estimate", self.on_estimate, TICK_QOS)
         self.create_subscription(JointReference, "reference", self.on_reference, TICK_QOS)
-        self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
+        # a monitor that died or froze is a stop: the DDS liveliness of the /safe_stop publishers
+        # (automatic, lease MONITOR_LEASE_S), not a timer of this node's own
+        self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS,
+                                 event_callbacks=SubscriptionEventCallbacks(liveliness=self.on_monitor_liveliness))
+        self.monitor_lost = None     # wall time at which the last live /safe_stop publisher was lost
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(0.002, self.on_wait_timer)
@@ -262,8 +267,32 @@ class ControllerNode(Node):
             self.waiting = None
             self.on_estimate(est, late=True)
 
+    def on_monitor_liveliness(self, info):
+        """The /safe_stop publishers' liveliness changed (issue 17.2). When the last live one
+        is lost (the monitor was killed, froze, or its host went away) after the stop state was
+        known, every brake engages: a stop of this node's own, cleared only by a reset of the
+        monitor, not by a new monitor's start state."""
+        if info.alive_count > 0 or info.alive_count_change >= 0:
+            if self.monitor_lost is not None and info.alive_count > 0:
+                self.get_logger().info("a /safe_stop publisher is alive again; the stop stays until ~/reset")
+                self.monitor_lost = None
+            return
+        self.monitor_lost = time.monotonic()
+        if not self.stop_known:          # never heard from a monitor: wait_for_monitor decides
+            return
+        stamp = self.last_command_stamp if self.last_command_stamp is not None else self.get_clock().now().nanoseconds
+        self.latch_own_stop(stamp, "monitor lost",
+                            f"no live /safe_stop publisher (liveliness lease {MONITOR_LEASE_S:g} s): the monitor "
+                            "died or froze")
+
     def on_safe_stop(self, msg):
         active = bool(msg.active)
+        if not active and self.own_stop is not None and msg.reason == MONITOR_STARTED:
+            # a (new) monitor's start state is no reset of a stop of this node's own
+            self.stop_known = True
+            self.get_logger().warning(f"a monitor started; the controller's own stop ({self.own_stop}) stays until "
+                                      "the monitor's ~/reset")
+            return
         if not active and (self.stop_active or not self.stop_known):
             # tracking resumes from wherever braking/holding left the joints: a transient
             self.begin_transient(self.transient_cause or "end of braking")

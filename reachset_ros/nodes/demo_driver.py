@@ -315,11 +315,13 @@ def calibrate_inflation(bags, workdir):
     ``(inflation, details)``; a flagged joint (no grid value held) is reported, and its
     largest grid value is used."""
     cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", "2", "--json"]
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    (Path(workdir) / "calibration.log").write_text(p.stderr)
+    # at low priority, as the synthesis node's child: it must not starve the running nodes
+    p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = p.communicate()
+    (Path(workdir) / "calibration.log").write_text(err)
     if p.returncode != 0:
-        raise RuntimeError("inflation calibration failed: " + ((p.stderr.strip().splitlines() or ["?"])[-1]))
-    r = json.loads(p.stdout)
+        raise RuntimeError("inflation calibration failed: " + ((err.strip().splitlines() or ["?"])[-1]))
+    r = json.loads(out)
     per = {n: float(j["inflation"]) for n, j in r["joints"].items()}
     flagged = [n for n, j in r["joints"].items() if j["calibration"].get("flagged")]
     return float(r["inflation"]), {"folds": 2, "command": " ".join(cmd[2:]), "per_joint": per, "flagged": flagged}

@@ -36,7 +36,7 @@ from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
-from .common import SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
+from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
 #: burst or a stalled executor costs latency, not ticks (samples wait in the DDS reader).
@@ -314,6 +314,7 @@ class MonitorNode(Node):
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
+        self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         path = self.get_parameter("model_file").value
         if path and not self.MANAGED:           # the managed variant loads it on configure
@@ -325,7 +326,7 @@ class MonitorNode(Node):
         if self.MANAGED:
             return
         # the initial state, latched: a controller waiting for the monitor may start
-        self.publish_stop_state(False, "reset", "monitor started: no safe stop active")
+        self.publish_stop_state(False, "reset", MONITOR_STARTED)
 
     def publish_stop_state(self, active, kind, reason):
         """Publish (latched) a safe-stop state stamped now, without a check's details: the
@@ -336,6 +337,14 @@ class MonitorNode(Node):
         m.active, m.kind, m.reason = active, kind, reason
         self.stop_msg = m
         self.stop_pub.publish(m)
+
+    def repeat_stop(self):
+        """Bounded delivery (issue 17.2): an active stop is published again every tick period
+        (the same message, the same stamp) until a reset, whatever the data do, so a sample
+        lost on the otherwise idle topic is replaced within a tick instead of at the DDS
+        heartbeat period (3 s); receivers treat a repeat as the stop they already have."""
+        if self.stop_active and self.stop_msg is not None:
+            self.stop_pub.publish(self.stop_msg)
 
     def restart_watchdog(self):
         """Forget the wall times of the last tick and messages: the missing-data watchdog
