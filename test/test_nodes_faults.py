@@ -9,6 +9,8 @@ Stamps increase across the whole module (:func:`stamps`): a monitor hearing an o
 test's late message must never see a stamp going backwards by accident.
 """
 import math
+import os
+import signal
 import time
 
 import numpy as np
@@ -23,7 +25,7 @@ from reachset_ros import launch
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.monitor import FaultEvent, TickEvent
 from reachset_ros.errors import ReachsetError
-from reachset_ros.nodes.common import SAFE_STOP_QOS, stamp_ns, to_stamp
+from reachset_ros.nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, stamp_ns, to_stamp
 from reachset_ros.nodes.monitor_node import MonitorCore
 
 DT_NS = 4_000_000
@@ -1067,42 +1069,45 @@ def outputs_match(got, expected):
 
 
 class TestMonitorLost:
-    def test_a_killed_monitor_is_a_stop_that_only_a_reset_clears(self, bus, tmp_path):
+    def test_a_frozen_monitor_is_a_stop_that_only_a_reset_clears(self, bus, tmp_path):
         """Issue 17.2: the controller requests the /safe_stop publishers' liveliness (lease
-        MONITOR_LEASE_S); when the monitor is SIGKILLed it brakes (a stop of its own), a new
-        monitor's start state does not release it, the new monitor's reset does. Before: the
-        controller went on tracking with no monitor at all."""
+        MONITOR_LEASE_S); when the monitor freezes (SIGSTOP: no liveliness, as when it is
+        killed) it brakes, a stop of its own. The monitor alive again does not release it, nor
+        does a monitor's start state; the monitor's reset does. Before: the controller went on
+        tracking with no monitor at all. (SIGSTOP rather than SIGKILL here: a killed process
+        stays in the DDS graph until its participant lease ends and would confuse later tests.)"""
         qd = np.array([0.5, -0.5])
         track, brake = tracking_law(10.0, 1.0, qd=qd), braking_law(Q_TEST, qd, np.array([26.0, 26.0]))
         assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
         path = write_model(tmp_path / "m.yaml")
-
-        def start_monitor(name):
-            d = tmp_path / name
-            d.mkdir()
-            return launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
-                                                 "reset_clean_ticks": 0, "window_dir": str(d / "w")}, d)
-
-        m1 = start_monitor("m1")
+        mon = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+                                            "reset_clean_ticks": 0, "window_dir": str(tmp_path / "w")}, tmp_path)
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True)
-        m2 = None
+        pub = None
         try:
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
                             30), ctl.log.read_text()
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 30), ctl.log.read_text()
-            m1.proc.kill()
-            m1.proc.wait(timeout=10)
-            assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), brake), 10), ctl.log.read_text()
-            assert "stop: monitor lost" in ctl.log.read_text()
-            m2 = start_monitor("m2")
-            assert bus.wait(lambda: "stays until the monitor's ~/reset" in ctl.log.read_text(), 30), \
+            os.kill(mon.proc.pid, signal.SIGSTOP)
+            try:
+                assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), brake), 10), ctl.log.read_text()
+                assert "stop: monitor lost" in ctl.log.read_text()
+            finally:
+                os.kill(mon.proc.pid, signal.SIGCONT)
+            assert bus.wait(lambda: "alive again; the stop stays until ~/reset" in ctl.log.read_text(), 15), \
+                ctl.log.read_text()[-1500:]
+            pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+            pub.publish(SafeStop(active=False, kind="reset", reason=MONITOR_STARTED))
+            assert bus.wait(lambda: "stays until the monitor's ~/reset" in ctl.log.read_text(), 15), \
                 ctl.log.read_text()[-1500:]
             assert all(np.allclose(u, brake, rtol=0, atol=1e-9) for u in drive(bus, stamps(5), qd=qd).values())
             assert bus.call_trigger("/monitor_node/reset").success
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15), ctl.log.read_text()
-            assert ctl.alive()
+            assert ctl.alive() and mon.alive()
         finally:
-            launch.stop([ctl, m1] + ([m2] if m2 else []))
+            launch.stop([ctl, mon])
+            if pub is not None:
+                bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
 
 
 class TestResetNeedsClearedCondition:
