@@ -205,6 +205,13 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
             out["real_time_factor"][name] = round(rtf, 3)
             return met
 
+        # 0. the controller holds the arm until the monitor's start state reaches it (a slow
+        # start on a loaded machine: seconds), while the reference runs on; the release is a
+        # jump that saturates the torques for a few ticks, where the recorded u_p is not the
+        # applied one. Identification data start after it has settled.
+        if not driver.spin_for(120.0, until=lambda: bool(driver.stops)):
+            raise RuntimeError("no /safe_stop state from the monitor within 120 s")
+        timed("start-up", settle)
         # 1. initial gains, recorded for identification and synthesis
         bag1 = workdir / "train_initial_gains"
         rec, _ = record_phase("initial", train, CORE_TOPICS, bag1)
