@@ -133,7 +133,10 @@ class Theorem1:
         n, ny = plant.A.shape[0], plant.C.shape[0]
         if initial is not None and ny != 1:
             raise ReachsetError("the initial-state set is implemented for one-output plants only")
-        maps = initial_error_maps(plant, initial) if initial is not None else None
+        if initial is not None:         # the estimate's error maps, through the generators, once
+            Sw, Sv = initial_error_maps(plant, initial)
+            SwG, SvG = [S @ plant.Gw for S in Sw], [S @ plant.Gv for S in Sv]
+            Sw_sum, Sv_sum = sum(Sw, np.zeros((n, n))), sum(Sv, np.zeros((n, ny)))
         normals = output_normals(plant, horizon)
         Dp, Dm = [], []
         sumE = np.zeros((ny, n))       # sum_{i<k} C A^i
@@ -150,15 +153,14 @@ class Theorem1:
             radV = np.abs(N @ plant.Gv)
             cW = N @ sumE
             cV = N
-            if maps is not None:            # C A^k E: the estimate's error propagated k steps
-                P = N @ plant.C @ np.linalg.matrix_power(plant.A, k)
-                Sw, Sv = maps
-                for S in Sw:
-                    radW = radW + np.abs(P @ S @ plant.Gw)
-                for S in Sv:
-                    radV = radV + np.abs(P @ S @ plant.Gv)
-                cW = cW + P @ sum(Sw, np.zeros((n, n)))
-                cV = cV + P @ sum(Sv, np.zeros((n, ny)))
+            if initial is not None:         # N C A^k (E = C A^k here): the estimate's error k steps on
+                P = N @ E
+                for G in SwG:
+                    radW = radW + np.abs(P @ G)
+                for G in SvG:
+                    radV = radV + np.abs(P @ G)
+                cW = cW + P @ Sw_sum
+                cV = cV + P @ Sv_sum
             Dp.append(np.hstack([cW, cV, radW, radV]))
             Dm.append(np.hstack([-cW, -cV, radW, radV]))
             sumE = sumE + E

@@ -174,12 +174,12 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
                      workdir, group=procs)
         cfg = config_path()
         demo_cfg = cfg.parent / "demo_synthesis.yaml" if cfg is not None else None
-        extra = ["--config", str(demo_cfg)] if demo_cfg is not None and demo_cfg.is_file() else []
+        demo_cfg = demo_cfg if demo_cfg is not None and demo_cfg.is_file() else None
+        extra = ["--config", str(demo_cfg)] if demo_cfg is not None else []
         # R*_e and R*_u for every reference the reference node can send (its U_ref), not only the
         # recorded ones: the monitored run's motions are new samples of that class
         extra += ["--reference-class", f"qdd_max={U_REF:g}"]
-        used_cfg = load_config(demo_cfg if demo_cfg is not None and demo_cfg.is_file() else None)
-        hg = used_cfg["structures"]["hg"]
+        hg = load_config(demo_cfg)["structures"]["hg"]
         out["search_box"] = {n: [float(x) for x in hg["bounds"][n]] for n in hg["free"]}
         # the gains are synthesised for the sets the monitor will check (inflated by 1 + inflation),
         # so R*_u inside U_p is certified for them (synthesize --inflation); the first synthesis,
