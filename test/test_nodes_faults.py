@@ -131,6 +131,24 @@ def test_core_bad_sample_is_a_fault_with_its_reason(model, case, kind, joint, wo
     assert ticks_of(ev)[-1].stamp == ts[79]
 
 
+def test_core_non_finite_half_tick_is_a_fault_without_its_pair(model):
+    """Issue 17 (the fault campaign): a NaN /joint_states sample is a fault when it arrives,
+    not only once its /plant_input pairs with it: on the running loop the observer skips the
+    sample, no /plant_input ever comes for its stamp, and the stop used to come only from the
+    missing-data watchdog 0.5 s later. The same for a non-finite /plant_input."""
+    for half in ("y", "u"):
+        core = MonitorCore(mdl.load(model))
+        Y, U = stream(80, seed=1)
+        ts = stamps(80)
+        assert not faults_of(feed(core, ts[:60], Y, U))
+        v = list((Y if half == "y" else U)[60])
+        v[1] = math.nan
+        f = faults_of(core.add_y(ts[60], JOINTS, v) if half == "y" else core.add_u(ts[60], JOINTS, v))
+        assert len(f) == 1 and f[0].kind == "invalid_sample" and f[0].joint == JOINTS[1], f
+        assert f[0].stamp == ts[60] and "non-finite" in f[0].reason
+        assert core.counters["invalid_" + half] == 1
+
+
 def test_core_after_a_clock_jump_back_messages_of_checked_ticks_are_stale(model):
     """The source's clock jumps back: one stamp_backwards fault; the following messages
     (on the new clock, older than the last checked tick) are skipped and counted."""

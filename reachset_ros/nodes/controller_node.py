@@ -36,6 +36,7 @@ treated as none (hold the measured position); both are counted on ``/diagnostics
 import time
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -52,6 +53,10 @@ from .gain_params import (current_values, declare_certificate_parameters, declar
                           validate_pair)
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
+
+
+#: a safe stop with no estimate for this long (s, wall) engages every brake at once
+STOP_ESTIMATE_TIMEOUT = 0.1
 
 
 class ControllerNode(Node):
@@ -98,6 +103,9 @@ class ControllerNode(Node):
         self.stop_active = False
         self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.stop = None             # StopState of the stop in progress (None while tracking)
+        self.last_estimate_stamp = 0  # stamp of the newest estimate received (ns)
+        self.last_estimate_wall = None  # wall time (monotonic) it arrived
+        self.stop_received = 0       # last_estimate_stamp when the active /safe_stop arrived (BrakeCommand)
         self.own_stop = None         # reason of a stop latched by this node (no usable estimate)
         self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
@@ -259,13 +267,38 @@ class ControllerNode(Node):
             self.on_estimate(est)
 
     def on_wait_timer(self):
-        """An estimate waited ``reference_timeout`` for its reference: control with the newest earlier one."""
+        """An estimate waited ``reference_timeout`` for its reference: control with the newest
+        earlier one. And a safe stop without estimates brakes at once (:meth:`brake_without_estimates`)."""
+        self.brake_without_estimates()
         if self.waiting is None:
             return
         if time.monotonic() - self.waiting[2] >= float(self.get_parameter("reference_timeout").value):
             _, est, _ = self.waiting
             self.waiting = None
             self.on_estimate(est, late=True)
+
+    def brake_without_estimates(self):
+        """A safe stop is active but no estimate has come for ``STOP_ESTIMATE_TIMEOUT`` s (the
+        observer died or froze, or its data stopped): the braking law has nothing to act on,
+        so every holding brake engages now, on ``/brake_command`` (issue 17: a killed observer
+        left the arm on the drives' last command)."""
+        if not self.stop_active or self.last_estimate_wall is None:
+            return
+        if time.monotonic() - self.last_estimate_wall < STOP_ESTIMATE_TIMEOUT:
+            return
+        if self.stop is None:
+            self.stop = StopState(len(self.joints))
+        if bool(self.stop.engaged.all()):
+            return
+        stamp = self.last_command_stamp if self.last_command_stamp is not None else self.last_estimate_stamp
+        before = int(self.stop.engaged.sum())
+        self.stop.engage_all(stamp, f"no estimate for {STOP_ESTIMATE_TIMEOUT * 1e3:.0f} ms during the safe stop")
+        self.counters["brakes_engaged"] += len(self.joints) - before
+        self.get_logger().error(f"safe stop without estimates (none for {STOP_ESTIMATE_TIMEOUT * 1e3:.0f} ms): "
+                                "every holding brake engaged")
+        t = Time()
+        t.sec, t.nanosec = divmod(int(stamp), 1_000_000_000)
+        self.publish_brakes(t)
 
     def on_monitor_liveliness(self, info):
         """The /safe_stop publishers' liveliness changed (issue 17.2). When the last live one
@@ -299,6 +332,7 @@ class ControllerNode(Node):
         if active != self.stop_active or not self.stop_known:
             what = f"({msg.kind}: {msg.reason}; stamp {stamp_ns(msg.header.stamp)})"
             if active:
+                self.stop_received = self.last_estimate_stamp
                 self.get_logger().warning(f"safe stop active: braking {what}")
             else:
                 self.get_logger().info(f"safe stop inactive: tracking {what}")
@@ -306,6 +340,7 @@ class ControllerNode(Node):
         self.stop_active = active
         if not self.stop_active:
             self.stop = None            # the brakes are released with the next command
+            self.stop_received = 0
             if self.own_stop is not None:
                 self.get_logger().info(f"the controller's own stop ({self.own_stop}) is cleared with the reset")
             self.own_stop = None
@@ -324,6 +359,13 @@ class ControllerNode(Node):
         b.name = list(self.joints)
         engaged = self.stop.engaged if self.stop is not None else np.zeros(len(self.joints), bool)
         b.engage = [bool(x) for x in engaged]
+        # when braking began and when the stop reached this node (stamps): what the fault
+        # campaign measures as braking onset after the stop's arrival
+        since = 0
+        if self.stop is not None:   # an own stop engages every brake at once (no braking law tick)
+            since = self.stop.start_ns or (self.stop.reasons[0][0] if self.stop.reasons else 0)
+        b.braking_since_ns = int(since)
+        b.stop_received_ns = int(self.stop_received)
         if self.stop is not None and self.stop.reasons:
             _, j, why = self.stop.reasons[-1]
             b.reason = f"{self.joints[j]}: {why}"
@@ -384,6 +426,12 @@ class ControllerNode(Node):
         two come from different nodes, in either order). An estimate whose reference has not
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
+        if not late:
+            self.last_estimate_wall = time.monotonic()
+            # the newest stamp (a sample whose stamp jumped back is not newer; a jump back by
+            # more than 1 s is a new clock, as for the commands below)
+            if stamp > self.last_estimate_stamp or stamp < self.last_estimate_stamp - 1_000_000_000:
+                self.last_estimate_stamp = stamp
         if not late and self.waiting is not None and self.waiting[0] < stamp:
             # an older estimate still waits for its reference: it is controlled first, whether
             # this one tracks or brakes, so commands never go back in stamp (the monitor's

@@ -206,6 +206,14 @@ class MonitorCore:
         if err is not None:
             self.counters["rejected_" + kind] += 1
             return [err]
+        bad = np.flatnonzero(~np.isfinite(vals))
+        if len(bad):
+            # at once, not when the tick's other half arrives: a NaN /joint_states sample has no
+            # /plant_input (the observer skips it, the loop waits), so it would never pair
+            self.counters["invalid_" + kind] += 1
+            j = self.joints[int(bad[0])]
+            return [FaultEvent(stamp, "invalid_sample",
+                               f"invalid (non-finite) sample of joint {j} at {stamp} ns on {TOPIC[kind]}", j)]
         entry = self.pending.setdefault(stamp, {})
         entry[kind] = vals
         if "y" in entry and "u" in entry:

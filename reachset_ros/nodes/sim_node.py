@@ -17,10 +17,18 @@ first measurement a fault can change is published, latched, on ``/sim/fault_onse
 default) it also publishes ``/clock`` (rosgraph_msgs/Clock, the stamp of each
 measurement), as Gazebo does, so that nodes run with ``use_sim_time: true`` (the demo's
 recorder and conductor) follow the simulation's time whatever the machine's load.
+
+A step on a stale command (the lockstep timeout passed without the command of the last
+measurement: the drive held the previous one, an input the recorded ``/plant_input`` does
+not show) is never silent: each is logged (throttled to one line a second, with the count)
+and counted on ``/diagnostics`` (``reachset_ros: simulator``, about 1 Hz, WARN while such
+steps occur, with ``stale_effort``, ``last_stale_stamp_ns`` and the longest run of
+consecutive stale steps).
 """
 import time
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -70,6 +78,11 @@ class SimNode(Node):
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
                                     "before stepping with the previous one (0: free-running)", 0.0, 1.0))
+        self.declare_parameter("drive_watchdog_steps", 3,
+                               desc("the drives engage every holding brake after this many consecutive steps on a "
+                                    "stale command (a controller that died or stalled), as a drive's communication "
+                                    "watchdog does; the next brake command releases them (0: off)", 0, 100000,
+                                    integer=True))
         self.declare_parameter("publish_clock", True,
                                desc("publish /clock (the simulation's time) every tick", read_only=True))
         self.declare_parameter("fault", "none",
@@ -93,7 +106,10 @@ class SimNode(Node):
         self.tau = np.array(self.arm.state.tau_pending)
         self.t_start = time.monotonic()
         self.names = list(self.arm.joint_names)
-        self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0}
+        self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0, "stale_run_max": 0}
+        self.stale_run = 0           # consecutive steps on a stale command now
+        self.last_stale_stamp = 0    # stamp of the last measurement stepped on a stale command
+        self.stale_reported = 0      # stale_effort at the last /diagnostics
         self.fresh = False
         self.pub = self.create_publisher(JointState, "joint_states", TICK_QOS)
         self.clock_pub = (self.create_publisher(Clock, "/clock", CLOCK_QOS)
@@ -102,6 +118,8 @@ class SimNode(Node):
         self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
         self.create_subscription(BrakeCommand, "brake_command", self.on_brakes, TICK_QOS)
         self.reported = dict(self.arm.counters)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.dt = dt
         self.next_wall = time.monotonic() + dt
@@ -171,15 +189,32 @@ class SimNode(Node):
         if now < self.next_wall:
             return
         timeout = float(self.get_parameter("lockstep_timeout").value)
-        if not self.fresh:
+        stale = not self.fresh
+        if stale:
             if timeout > 0 and now - self.published_wall < timeout:
                 return
             self.counters["stale_effort"] += 1
+            self.stale_run += 1
+            self.counters["stale_run_max"] = max(self.counters["stale_run_max"], self.stale_run)
+        else:
+            self.stale_run = 0
         self.fresh = False
         # keep the 4 ms schedule: a tick that was late is made up by the next ones (each still
         # waits for its command); after a stall of more than CATCH_UP the schedule restarts
         self.next_wall = self.next_wall + self.dt if now - self.next_wall < CATCH_UP else now + self.dt
+        wd = int(self.get_parameter("drive_watchdog_steps").value)
+        if stale and wd > 0 and self.stale_run >= wd and not bool(np.all(self.arm.brakes)):
+            self.counters["drive_watchdog"] = self.counters.get("drive_watchdog", 0) + 1
+            self.get_logger().error(f"drive watchdog: {self.stale_run} consecutive steps without a fresh command "
+                                    f"at stamp {self.arm.stamp(self.arm.state.k + 1)}: every holding brake engaged")
+            self.arm.set_brakes(np.ones(len(self.names), dtype=bool))
         self.m = self.arm.step(self.tau)
+        if stale:
+            self.last_stale_stamp = self.m.stamp_ns
+            self.get_logger().warning(
+                f"stepped on a stale command at stamp {self.m.stamp_ns} (no command for the last measurement "
+                f"within {timeout:g} s; {self.counters['stale_effort']} such steps so far, {self.stale_run} in a row)",
+                throttle_duration_sec=1.0)
         self.published_wall = time.monotonic()
         self.counters["ticks"] += 1
         if self.arm.counters != self.reported:
@@ -192,10 +227,30 @@ class SimNode(Node):
             self.reported = dict(self.arm.counters)
         self.publish(self.m)
 
+    def publish_diagnostics(self):
+        """About 1 Hz: ticks, stale-command steps (WARN when some occurred since the last
+        report), bad effort messages and the simulated arm's event counters."""
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        st = DiagnosticStatus(name="reachset_ros: simulator", hardware_id="")
+        new = self.counters["stale_effort"] - self.stale_reported
+        self.stale_reported = self.counters["stale_effort"]
+        if new:
+            st.level = DiagnosticStatus.WARN
+            st.message = (f"{new} step(s) on a stale command since the last report (last at stamp "
+                          f"{self.last_stale_stamp}): the applied input is not the recorded /plant_input")
+        else:
+            st.level, st.message = DiagnosticStatus.OK, "stepping"
+        values = dict(self.counters, last_stale_stamp_ns=self.last_stale_stamp, **self.arm.counters)
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(values.items())]
+        arr.status = [st]
+        self.diag_pub.publish(arr)
+
     def close(self):
         """At shutdown: say how many steps held a stale command (lockstep timeouts)."""
         c = self.counters
-        self.get_logger().info(f"ticks {c['ticks']}, steps with a stale command {c['stale_effort']}, "
+        self.get_logger().info(f"ticks {c['ticks']}, steps with a stale command {c['stale_effort']} "
+                               f"(longest run {c['stale_run_max']}), "
                                f"bad effort messages {c['bad_effort']}; simulated arm: "
                                + ", ".join(f"{k} {v}" for k, v in self.arm.counters.items()))
 

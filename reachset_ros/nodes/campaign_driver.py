@@ -1,0 +1,363 @@
+"""The fault campaign's runner (issue 17): the whole simulated system over real DDS, faults
+from a seeded schedule (:mod:`reachset_ros.sim.campaign`), every stop measured.
+
+``run_campaign`` starts the suite as the demo does (calibrated simulated LWA-4P, reference,
+observer, controller with ``wait_for_monitor``, monitor), records ``train`` s ``train_runs``
+times with the initial gains, identifies the monitor's model from those recordings with the
+inflation calibrated by cross-validation on them, each recording a fold (``reachset identify
+BAG1 BAG2 BAG3 --calibrate 3``), resets the monitor and then runs the events: for each, a fault-free stretch of
+monitored running, the fault, the wait for the stop, the braking it causes, and the recovery
+(faults cleared, a killed process restarted, the monitor reset, the arm tracking again for
+``RECOVER_S`` without a stop; a stop during the recovery is counted apart and the reset
+repeated). Every block of 8 events is recorded to its own bag (the campaign's topics),
+named in the outcome of each of its events, so a miss or a false stop comes with its data.
+CPU burners (one busy process per core, normal priority) run during the blocks the
+schedule says.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from reachset_msgs.msg import BrakeCommand, SafeStop
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from .. import launch
+from ..robot.lwa4p import default_nominal_path
+from ..sim import campaign as cp
+from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns
+from .demo_driver import CORE_TOPICS, INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, DemoDriver
+
+#: after a reset the arm must track this long (simulated s) without a stop before the next event
+RECOVER_S = 2.0
+#: an event expecting no stop is watched this long (simulated s) after it
+WATCH_S = 2.0
+#: a refused reset is tried again for this long (simulated s) before the campaign gives up
+RESET_PATIENCE_S = 20.0
+#: resets tried before the campaign gives up on recovering
+MAX_RESETS = 6
+BURNER = "while True:\n    pass\n"
+
+
+class CampaignListener:
+    """Distinct active stops with the simulation time and wall time of their arrival, and the
+    controller's brake commands that carry a stop's arrival."""
+
+    def __init__(self, driver: DemoDriver):
+        self.driver = driver
+        self.stops = []          # (stop stamp, arrival sim ns, reason, kind, arrival wall)
+        self.seen = set()
+        self.brakes = []         # (braking_since_ns, stop_received_ns)
+        self.last_js = None
+        driver.create_subscription(SafeStop, "safe_stop", self.on_stop, SAFE_STOP_QOS)
+        driver.create_subscription(BrakeCommand, "brake_command", self.on_brake, TICK_QOS)
+        driver.create_subscription(JointState, "joint_states", self.on_js, TICK_QOS)
+        driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
+        self.stale_total = 0     # the simulators' steps on a stale command (summed over restarts)
+        self._stale_last = 0
+
+    def on_diag(self, arr):
+        for st in arr.status:
+            if st.name == "reachset_ros: simulator":
+                v = {kv.key: kv.value for kv in st.values}
+                n = int(v.get("stale_effort", "0"))
+                # a restarted simulator counts from 0 again
+                self.stale_total += n - self._stale_last if n >= self._stale_last else n
+                self._stale_last = n
+
+    def on_stop(self, m):
+        if not m.active:
+            self.seen.clear()    # a reset: the next stop with any stamp is new
+            return
+        key = (stamp_ns(m.header.stamp), m.kind, m.reason)
+        if key in self.seen:     # the monitor repeats an active stop every tick until reset
+            return
+        self.seen.add(key)
+        self.stops.append((key[0], self.driver.sim_now(), f"{m.kind}: {m.reason}"[:300], m.kind, time.monotonic()))
+
+    def on_brake(self, m):
+        if m.stop_received_ns and m.braking_since_ns:
+            self.brakes.append((int(m.braking_since_ns), int(m.stop_received_ns)))
+
+    def on_js(self, m):
+        self.last_js = m
+
+
+class Burners:
+    """One busy process per core while on (normal priority: they compete with the nodes)."""
+
+    def __init__(self, n=None):
+        self.n = n or os.cpu_count() or 2
+        self.procs = []
+
+    def set(self, on):
+        if on and not self.procs:
+            self.procs = [subprocess.Popen([sys.executable, "-c", BURNER], start_new_session=True)
+                          for _ in range(self.n)]
+        elif not on and self.procs:
+            self.off()
+
+    def off(self):
+        for p in self.procs:
+            p.kill()
+            p.wait()
+        self.procs = []
+
+
+def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=None, train_runs=3):
+    """Run ``events`` (:func:`reachset_ros.sim.campaign.schedule`); returns ``(outcomes, info)``.
+
+    ``model``: a model file for the monitor (skips the training recordings and the
+    identification); ``info`` has the model, its inflation and the nodes' logs directory."""
+    workdir = Path(workdir).resolve()
+    workdir.mkdir(parents=True, exist_ok=True)
+    procs = {}
+    group = []
+    own = not rclpy.ok()
+    if own:
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    driver = DemoDriver()
+    lis = CampaignListener(driver)
+    burners = Burners()
+    jump_pub = driver.create_publisher(JointState, "joint_states", TICK_QOS)
+    common = {"joints": JOINTS, "allow_uncertified": True}
+    params = {
+        "sim_node": {"seed": seed, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT},
+        "reference_node": {"seed": seed},
+        "observer_node": {**common, **INITIAL_GAINS},
+        "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": True,
+                            "robot_params": str(default_nominal_path())},
+        "monitor_node": {"window_dir": str(workdir / "windows")},
+    }
+    info = {"workdir": str(workdir), "seed": seed}
+    outcomes = []
+    rec = None
+
+    def start(name):
+        procs[name] = launch.start(name, params[name], workdir, group=group)
+
+    def sim_wait(seconds, until=None):
+        return driver.spin_sim(seconds, until=until)[0]
+
+    def reset_monitor(o=None, patience_s=RESET_PATIENCE_S):
+        """The monitor's ~/reset, tried again every 0.25 s of simulated time while it is refused
+        because the stop's condition has not cleared (the arm still coming to rest)."""
+        t0 = driver.sim_now()
+        while True:
+            r = driver.call(Trigger, "/monitor_node/reset", Trigger.Request(), timeout=30.0)
+            if r.success:
+                if o is not None and not o.reset_ns:
+                    o.reset_ns = driver.sim_now()
+                return
+            if o is not None:
+                o.resets_refused += 1
+            if driver.sim_now() - t0 > patience_s * 1e9:
+                raise RuntimeError(f"monitor reset refused for {patience_s:g} s: {r.message}")
+            sim_wait(0.25)
+
+    def recover(ev, o):
+        if ev.kind == "sim":
+            ok, why = set_remote_parameters(driver, "sim_node", {"fault": "none"})
+            if not ok:
+                raise RuntimeError(f"clearing the fault: {why}")
+        if ev.kind == "kill":
+            launch.stop([procs[ev.target]], timeout=2.0)
+            old = procs[ev.target].log       # keep the killed process' log beside the new one
+            old.rename(old.with_name(f"{old.stem}.killed_event{ev.index:03d}.log"))
+            start(ev.target)
+            if ev.target == "sim_node":   # a new simulation (new clock): wait for it
+                c0 = driver.sim_now()
+                if not driver.spin_for(60.0, until=lambda: driver.sim_now() > c0 + 200_000_000):
+                    raise RuntimeError("the restarted sim_node does not tick")
+            else:
+                driver.spin_for(3.0)
+        for attempt in range(MAX_RESETS):
+            reset_monitor(o)
+            n = len(lis.stops)
+            sim_wait(RECOVER_S, until=lambda: len(lis.stops) > n)
+            if len(lis.stops) == n:
+                return
+            o.recovery_stops += 1
+            log(f"[campaign]   recovery stop {attempt + 1}: {lis.stops[-1][2][:160]}")
+            sim_wait(0.5)
+        raise RuntimeError(f"no recovery after {ev.label()}: {MAX_RESETS} resets, each followed by a stop")
+
+    def run_event(ev, bag):
+        o = cp.Outcome(ev, bag=str(bag))
+        stale0 = lis.stale_total
+        burners.set(ev.burners)
+        n = len(lis.stops)
+        t0 = driver.sim_now()
+        sim_wait(ev.quiet_s, until=lambda: len(lis.stops) > n)
+        o.quiet_sim_s = (driver.sim_now() - t0) * 1e-9
+        if len(lis.stops) > n:
+            o.quiet_stops = [s[:3] for s in lis.stops[n:]]
+            log(f"[campaign]   FALSE STOP in the fault-free stretch: {lis.stops[n][2][:200]}")
+            recover(ev if ev.kind == "none" else cp.Event(ev.index, "quiet", 0.0, "none"), o)
+        n = len(lis.stops)
+        nb = len(lis.brakes)
+        wall0 = time.monotonic()
+        if ev.kind == "sim":
+            driver.onsets.clear()
+            ok, why = set_remote_parameters(driver, "sim_node", {"fault_joint": ev.joint,
+                                                                  "fault_magnitude": float(ev.magnitude),
+                                                                  "fault": ev.fault})
+            if not ok:
+                raise RuntimeError(f"fault injection refused: {why}")
+            if not driver.spin_for(10.0, until=lambda: bool(driver.onsets)):
+                raise RuntimeError("no /sim/fault_onset after the injection")
+            o.fault_ns = stamp_ns(driver.onsets[-1].stamp)
+        elif ev.kind == "kill":
+            o.fault_ns = driver.sim_now()
+            os.kill(procs[ev.target].proc.pid, signal.SIGKILL)
+        elif ev.kind == "freeze":
+            o.fault_ns = driver.sim_now()
+            pid = procs[ev.target].proc.pid
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                driver.spin_for(ev.seconds)
+            finally:
+                os.kill(pid, signal.SIGCONT)
+        elif ev.kind == "stamp_jump":
+            js = lis.last_js
+            o.fault_ns = driver.sim_now()
+            bad = JointState()
+            bad.header.stamp.sec, bad.header.stamp.nanosec = divmod(
+                stamp_ns(js.header.stamp) - int(ev.seconds * 1e9), 1_000_000_000)
+            bad.name, bad.position, bad.velocity, bad.effort = list(js.name), list(js.position), \
+                list(js.velocity), list(js.effort)
+            jump_pub.publish(bad)
+        if ev.expect == "stop":
+            end = o.fault_ns + int(cp.DETECT_WITHIN_S * 1e9)
+            wall_end = wall0 + cp.DETECT_WITHIN_WALL_S
+            while len(lis.stops) == n and driver.sim_now() < end and time.monotonic() < wall_end:
+                driver.spin_once(0.01)
+        else:
+            wall_end = time.monotonic() + 30.0
+            t1 = driver.sim_now()
+            while len(lis.stops) == n and driver.sim_now() < t1 + int(WATCH_S * 1e9) and time.monotonic() < wall_end:
+                driver.spin_once(0.02)
+        o.stops = [s[:3] for s in lis.stops[n:]]
+        if o.stops:
+            o.wall_latency_s = lis.stops[n][4] - wall0
+            if not (ev.kind == "kill" and ev.target == "controller_node"):
+                driver.spin_for(6.0, until=lambda: len(lis.brakes) > nb)
+                mine = [b for b in lis.brakes[nb:] if b[1] > 0]
+                if mine:
+                    o.braking_ticks = (mine[0][0] - mine[0][1]) / 4e6
+            log(f"[campaign]   stop {o.stops[0][2][:140]!r}: {(o.stops[0][1] - o.fault_ns) * 1e-6:.1f} ms after the "
+                f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
+                f"{o.braking_ticks} ticks after its arrival")
+        elif ev.expect == "stop":
+            o.note = "no stop within the detection window"
+            log(f"[campaign]   MISSED: no stop within {cp.DETECT_WITHIN_S} s")
+        if o.stops or ev.kind in ("sim", "kill"):
+            recover(ev, o)
+        o.stale_steps = lis.stale_total - stale0   # as reported so far (/diagnostics at 1 Hz)
+        return o
+
+    try:
+        for name in ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node"):
+            start(name)
+        if not driver.spin_for(120.0, until=lambda: bool(driver.stops)):
+            raise RuntimeError("no /safe_stop state from the monitor within 120 s")
+        sim_wait(3.0)
+        if model is None:
+            bags = []
+            for i in range(1, train_runs + 1):
+                bag = workdir / f"train{i}"
+                r = _record(driver, workdir, bag, CORE_TOPICS, f"recorder_train{i}", group)
+                sim_wait(train)
+                launch.stop([r])
+                bags.append(bag)
+            model = workdir / "monitor_model.yaml"
+            cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", str(train_runs),
+                   "--out", str(model), "--json"]
+            p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            out, err = p.communicate()
+            if p.returncode != 0:
+                raise RuntimeError("identify: " + ((err.strip().splitlines() or ["?"])[-1]))
+            info["inflation"] = json.loads(out)["inflation"]
+            log(f"[campaign] monitor model identified, calibrated inflation {info['inflation']:g}")
+        info["model"] = str(model)
+        ok, why = set_remote_parameters(driver, "monitor_node", {"model_file": str(model)})
+        if not ok:
+            raise RuntimeError(f"monitor refused the model: {why}")
+        reset_monitor()
+        sim_wait(RECOVER_S)
+        wall0 = time.monotonic()
+        for ev in events:
+            if ev.index % 8 == 0:
+                if rec is not None:
+                    launch.stop([rec])
+                bag = workdir / f"block{ev.index // 8:03d}"
+                rec = _record(driver, workdir, bag, MONITOR_TOPICS, f"recorder_block{ev.index // 8:03d}", group)
+            log(f"[campaign] event {ev.index}: {ev.label()} (expect {ev.expect}; burners "
+                f"{'on' if ev.burners else 'off'}; {ev.quiet_s:g} s fault-free before)")
+            outcomes.append(run_event(ev, bag))
+        info["wall_s"] = time.monotonic() - wall0
+        if rec is not None:
+            launch.stop([rec])
+            rec = None
+        judge_stops(outcomes)
+        return outcomes, info
+    finally:
+        burners.off()
+        if rec is not None:
+            launch.stop([rec])
+        launch.stop(group)
+        info["logs"] = str(workdir)
+        driver.own_executor.shutdown(timeout_sec=1.0)
+        driver.destroy_node()
+        if own:
+            rclpy.try_shutdown()
+
+
+def _record(driver, workdir, bag, topics, node, group):
+    rec = launch.start("recorder_node", {"output": str(bag), "topics": topics, "use_sim_time": True}, workdir,
+                       node_name=node, group=group)
+    if not driver.spin_for(60.0, until=lambda: all(
+            any(i.node_name == node for i in driver.get_subscriptions_info_by_topic(t)) for t in topics)):
+        raise RuntimeError(f"{node} did not subscribe to {topics} within 60 s")
+    driver.spin_for(0.5)
+    return rec
+
+
+def judge_stops(outcomes):
+    """Each stop's effect from its block's bag (:func:`reachset_ros.sim.campaign.judge_rest`):
+    the recorded ``/joint_states`` from the stop's stamp to the reset. A killed simulator has
+    no arm left to judge (the restarted one starts at rest): not judged."""
+    from ..bags.series import read_messages
+    by_bag = {}
+    for o in outcomes:
+        if o.stops and o.reset_ns and not (o.event.kind == "kill" and o.event.target == "sim_node"):
+            by_bag.setdefault(o.bag, []).append(o)
+    for bag, group in by_bag.items():
+        t, q, qd, names = [], [], [], None
+        for _, _, m in read_messages([bag], ["/joint_states"]):
+            if names is None:
+                names = list(m.name)
+            if list(m.name) != names or len(m.position) != len(names) or len(m.velocity) != len(names):
+                continue       # a stamp-jump sample of the campaign has the same names; others are not the sim's
+            t.append(stamp_ns(m.header.stamp))
+            q.append(m.position)
+            qd.append(m.velocity)
+        order = sorted(range(len(t)), key=t.__getitem__)
+        t = [t[i] for i in order]
+        q = [q[i] for i in order]
+        qd = [qd[i] for i in order]
+        for o in group:
+            if not t:
+                o.rest = {"ok": False, "why": "no /joint_states in the bag", "judged": 0}
+                continue
+            # from the stop's stamp; a stamp jump's stop carries the jumped sample's stamp: from the fault's
+            o.rest = cp.judge_rest(o.event, names, t, q, qd, max(o.stops[0][0], o.fault_ns), o.reset_ns)

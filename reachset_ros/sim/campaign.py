@@ -1,0 +1,345 @@
+"""The fault campaign's schedule and its score (issue 17): pure data, no ROS.
+
+A campaign is a seeded list of :class:`Event` s, each preceded by a fault-free stretch of
+monitored running; :func:`schedule` draws it, :func:`score` turns what the runner observed
+(:class:`Outcome` per event) into the campaign's one table (:func:`table`).
+
+What each event is expected to do (``Event.expect``):
+
+* ``stop``: a fault that must stop the arm. Every fault kind of the simulator on every
+  joint (magnitudes in :data:`SIM_FAULTS`, beyond what the identified sets allow), a killed
+  process (SIGKILL of the observer, controller or simulator: its data stop, the monitor's
+  watchdog stops), a sample whose stamp jumps back (a second publisher on
+  ``/joint_states``: the monitor's ``stamp_backwards`` fault). A missed stop is an event of
+  this kind with no new active stop within :data:`DETECT_WITHIN_S` of simulated time
+  (``DETECT_WITHIN_WALL_S`` of wall time for a killed process, whose clock may stop).
+* ``none``: a perturbation the system must ride through: a process frozen (SIGSTOP, then
+  SIGCONT) for less than :data:`FREEZE_TOLERATED_S`; the simulator waits for its command
+  (lockstep) and every topic is queued. Any stop then, or in the fault-free stretch before
+  an event, is a false stop.
+* ``either``: a freeze of :data:`FREEZE_TOLERATED_S` or longer (up to 0.5 s): within one
+  tick of the monitor's 0.5 s missing-data limit, so a stop is allowed; counted apart.
+
+The stop latency is measured from the fault's stamp (the simulator's first affected
+measurement, ``/sim/fault_onset``; for a process fault or a stamp jump the simulation's
+time when it was injected) to the stop's arrival at the campaign's listener, on the
+simulation's clock; the stamp the stop carries is reported too.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..robot.dynamics import JOINT_NAMES, TABLE1_TAU_MAX
+
+__all__ = ["Event", "Outcome", "SIM_FAULTS", "schedule", "score", "table", "DETECT_WITHIN_S",
+           "DETECT_WITHIN_WALL_S", "FREEZE_TOLERATED_S", "KILLABLE", "FREEZABLE", "judge_rest"]
+
+#: a fault that must stop is missed when no stop arrives within this much simulated time
+DETECT_WITHIN_S = 1.0
+#: ... or this much wall time (a killed or frozen simulator stops the simulation's clock)
+DETECT_WITHIN_WALL_S = 5.0
+#: freezes shorter than this must not stop (the monitor's missing-data limit is 0.5 s)
+FREEZE_TOLERATED_S = 0.4
+#: processes the campaign kills (SIGKILL) and restarts
+KILLABLE = ("observer_node", "controller_node", "sim_node")
+#: processes the campaign freezes (SIGSTOP for 50-500 ms, then SIGCONT)
+FREEZABLE = ("observer_node", "controller_node", "sim_node", "monitor_node", "reference_node")
+
+
+def _sim_faults():
+    """(kind, joint, magnitude) of every simulator fault kind on every joint: an
+    acceleration of 30 rad/s^2 (beyond u_max), half the joint's Table I torque, a sensor bias
+    of 0.01 rad, a frozen sensor, 3 NaN samples; a 5 kg payload (all joints)."""
+    out = [("payload", JOINT_NAMES[-1], 5.0)]
+    for j, name in enumerate(JOINT_NAMES):
+        out += [("acceleration", name, 30.0), ("torque", name, 0.5 * float(TABLE1_TAU_MAX[j])),
+                ("bias", name, 0.01), ("frozen", name, 0.0), ("nan", name, 3.0)]
+    return tuple(out)
+
+
+SIM_FAULTS = _sim_faults()
+
+
+@dataclass(frozen=True)
+class Event:
+    """One scheduled event: ``quiet_s`` s of fault-free running, then the fault.
+
+    ``kind``: ``sim`` (``fault``, ``joint``, ``magnitude``), ``kill`` (``target``),
+    ``freeze`` (``target``, ``seconds``), ``stamp_jump`` (``seconds`` back) or ``quiet``
+    (nothing: a longer fault-free stretch). ``burners``: CPU burners on both cores run
+    during the event and the stretch before it."""
+
+    index: int
+    kind: str
+    quiet_s: float
+    expect: str                  # stop | none | either
+    burners: bool = False
+    target: str = ""
+    fault: str = ""
+    joint: str = ""
+    magnitude: float = 0.0
+    seconds: float = 0.0
+
+    def label(self):
+        if self.kind == "sim":
+            return f"sim {self.fault} {self.joint} {self.magnitude:g}"
+        if self.kind == "kill":
+            return f"kill {self.target}"
+        if self.kind == "freeze":
+            return f"freeze {self.target} {self.seconds * 1e3:.0f} ms"
+        if self.kind == "stamp_jump":
+            return f"stamp jump back {self.seconds * 1e3:.0f} ms"
+        return f"quiet {self.quiet_s:g} s"
+
+
+@dataclass
+class Outcome:
+    """What the runner saw for one event (stamps in ns of the simulation's clock)."""
+
+    event: Event
+    fault_ns: int = 0                 # the fault's stamp
+    stops: list = field(default_factory=list)   # (stop stamp, arrival sim ns, reason) of new active stops
+    quiet_stops: list = field(default_factory=list)   # the same, in the fault-free stretch before
+    quiet_sim_s: float = 0.0          # fault-free monitored time before the event (simulated s)
+    wall_latency_s: float = None      # wall time from injection to the stop's arrival
+    braking_ticks: float = None       # controller: first braking command - newest estimate at the stop's arrival
+    recovery_stops: int = 0           # stops while recovering (after a reset), not scored
+    resets_refused: int = 0           # resets the monitor refused (the stop's condition persisted)
+    reset_ns: int = 0                 # the simulation's time when the reset after the stop succeeded
+    rest: dict = None                 # the stop's effect from the bag (:func:`judge_rest`)
+    stale_steps: int = 0              # simulator steps on a stale command during the event (its /diagnostics)
+    bag: str = ""                     # the bag holding the event
+    note: str = ""
+
+    def as_dict(self):
+        d = asdict(self)
+        d["event"] = self.event.label()
+        return d
+
+
+def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kinds=None):
+    """A seeded campaign of ``n_events`` events.
+
+    The faults cycle through every simulator fault on every joint (:data:`SIM_FAULTS`), every
+    killable process, freezes of every freezable process (50-500 ms, uniform) and stamp
+    jumps (0.1-1 s back), in a seeded random order, one kind after another so that each
+    kind is reached early; one event in eight is ``quiet``. Before each event a fault-free
+    stretch drawn uniformly from ``quiet_s`` (simulated s). The CPU burners run in
+    alternating blocks of 8 events, ``burner_share`` of them on.
+
+    Parameters
+    ----------
+    seed : int
+    n_events : int
+    quiet_s : (float, float)
+    burner_share : float
+        0 (never), 0.5 (every other block) or 1 (always).
+    kinds : iterable of str, optional
+        Restrict to these event kinds (``sim``, ``kill``, ``freeze``, ``stamp_jump``, ``quiet``).
+
+    Returns
+    -------
+    list of Event
+    """
+    rng = np.random.default_rng(seed)
+    pools = {
+        "sim": [dict(fault=f, joint=j, magnitude=m) for f, j, m in SIM_FAULTS],
+        "kill": [dict(target=t) for t in KILLABLE],
+        "freeze": [dict(target=t) for t in FREEZABLE],
+        "stamp_jump": [dict()],
+        "quiet": [dict()],
+    }
+    weights = {"sim": 4, "kill": 1, "freeze": 2, "stamp_jump": 1}
+    if kinds is not None:
+        kinds = set(kinds)
+        unknown = kinds - set(pools)
+        if unknown:
+            raise ValueError(f"unknown event kinds {sorted(unknown)}; known: {sorted(pools)}")
+        pools = {k: v for k, v in pools.items() if k in kinds}
+        weights = {k: v for k, v in weights.items() if k in kinds}
+    order = {k: list(rng.permutation(len(v))) for k, v in pools.items()}
+    cycle = [k for k, w in weights.items() for _ in range(w)]
+    events = []
+    for i in range(n_events):
+        if "quiet" in pools and (i % 8 == 7 or not cycle):
+            kind = "quiet"
+        else:
+            kind = cycle[int(rng.integers(len(cycle)))] if i >= len(weights) else list(weights)[i]
+        if not order[kind]:
+            order[kind] = list(rng.permutation(len(pools[kind])))
+        spec = dict(pools[kind][order[kind].pop(0)])
+        block_on = (i // 8) % 2 == 0 if burner_share == 0.5 else burner_share >= 1
+        q = float(rng.uniform(*quiet_s))
+        if kind == "freeze":
+            spec["seconds"] = round(float(rng.uniform(0.05, 0.5)), 3)
+            expect = "none" if spec["seconds"] < FREEZE_TOLERATED_S else "either"
+        elif kind == "stamp_jump":
+            spec["seconds"] = round(float(rng.uniform(0.1, 1.0)), 3)
+            expect = "stop"
+        elif kind == "quiet":
+            expect = "none"
+        else:
+            expect = "stop"
+        events.append(Event(index=i, kind=kind, quiet_s=round(q, 3), expect=expect, burners=bool(block_on), **spec))
+    return events
+
+
+def judge_rest(event, names, stamps_ns, q, qd, stop_ns, until_ns):
+    """The stop's effect, read from the recorded ``/joint_states`` between the stop's stamp
+    and ``until_ns`` (the reset): every joint at rest (abs(qd) < 0.01 rad/s to the end)
+    within :data:`~reachset_ros.sim.safe_stop.REST_WITHIN_S` of the stop, having moved at most
+    :data:`~reachset_ros.sim.safe_stop.TRAVEL_WITHIN_RAD` (the stated effect of a category-1
+    stop, :func:`~reachset_ros.systems.stopping.rest_after_stop`). The joint of a frozen
+    sensor cannot show rest and is not judged (the arm's true state is not recorded; the
+    stop law on the true state is checked by test/test_stopping.py). Returns a dict
+    (``ok``, ``rest_s``, ``travel_rad``, ``judged``, ``seconds``, ``why``)."""
+    from ..systems.stopping import rest_after_stop
+    from .safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
+    stamps_ns = np.asarray(stamps_ns, np.int64)
+    keep = (stamps_ns >= stop_ns) & (stamps_ns <= until_ns)
+    judged = [j for j, n in enumerate(names) if not (event.kind == "sim" and event.fault == "frozen"
+                                                     and n == event.joint)]
+    if keep.sum() < 2:
+        return {"ok": False, "why": "no samples between the stop and the reset", "judged": len(judged)}
+    q, qd = np.asarray(q, float)[keep][:, judged], np.asarray(qd, float)[keep][:, judged]
+    rep = rest_after_stop([names[j] for j in judged], stamps_ns[keep], q, qd, stop_ns)
+    fails = rep.failures(REST_WITHIN_S, TRAVEL_WITHIN_RAD)
+    rest = [r for r in rep.rest_s if r is not None]
+    return {"ok": not fails, "why": "; ".join(map(str, fails))[:300],
+            "rest_s": max(rest) if len(rest) == len(rep.rest_s) else None,
+            "travel_rad": max(rep.travel), "judged": len(judged), "seconds": rep.seconds_after}
+
+
+def _pct(x, p):
+    return float(np.percentile(np.asarray(x, float), p)) if len(x) else None
+
+
+def score(outcomes, dt_ns=4_000_000):
+    """The campaign's table from the outcomes.
+
+    Returns
+    -------
+    dict
+        ``faults_injected`` (events expecting a stop), ``stops`` (of those, stopped),
+        ``missed_stops``, ``false_stops`` (a stop in a fault-free stretch or after an event
+        expecting none), ``either`` (tolerance-band freezes: events, stops),
+        ``fault_free_minutes`` (monitored, simulated), ``latency_ms`` (p50/p99/max of the
+        arrival on the simulation's clock after the fault's stamp, every stopped fault),
+        ``latency_ms_by_kind``, ``stamp_latency_ms`` (the stop's own stamp), ``wall_latency_ms``
+        for killed processes, ``braking_ticks_max`` (first braking command after the stop's
+        arrival at the controller, ticks; killed controllers excluded), ``misses`` and
+        ``false`` (each with its event, stamps and bag).
+    """
+    faults = [o for o in outcomes if o.event.expect == "stop"]
+    stopped = [o for o in faults if o.stops]
+    missed = [o for o in faults if not o.stops]
+    false = []
+    for o in outcomes:
+        for s in o.quiet_stops:
+            false.append({"event": o.event.label(), "where": "fault-free stretch before it", "stop": list(s),
+                          "bag": o.bag})
+        if o.event.expect == "none" and o.stops:
+            false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
+                          "bag": o.bag})
+    lat = [(o.stops[0][1] - o.fault_ns) * 1e-6 for o in stopped]
+    stamp_lat = [(o.stops[0][0] - o.fault_ns) * 1e-6 for o in stopped]
+    by_kind = {}
+    for o, x in zip(stopped, lat):
+        key = o.event.fault if o.event.kind == "sim" else o.event.kind
+        by_kind.setdefault(key, []).append(x)
+    wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
+    # braking after the stop's arrival at the controller: every stop but a killed process'
+    # (after a SIGKILL the other participants' sends to its shared-memory ports can block for
+    # seconds, docs/reliability.md; a killed controller cannot brake, the drives' watchdog does)
+    braking = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind != "kill"]
+    braking_killed = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind == "kill"]
+    unbraked = [o.event.label() for o in stopped if o.braking_ticks is None and o.event.kind != "kill"]
+    judged = [o for o in stopped if o.rest is not None]
+    not_at_rest = [{"event": o.event.label(), "fault_ns": o.fault_ns, "rest": o.rest, "bag": o.bag}
+                   for o in judged if not o.rest["ok"]]
+    rest_s = [o.rest["rest_s"] for o in judged if o.rest.get("rest_s") is not None]
+    travel = [o.rest["travel_rad"] for o in judged if o.rest.get("travel_rad") is not None]
+    either = [o for o in outcomes if o.event.expect == "either"]
+
+    def stats(x):
+        return {"n": len(x), "p50": _pct(x, 50), "p99": _pct(x, 99), "max": max(x) if x else None}
+    return {
+        "events": len(outcomes),
+        "faults_injected": len(faults),
+        "stops": len(stopped),
+        "missed_stops": len(missed),
+        "false_stops": len(false),
+        "either": {"events": len(either), "stopped": sum(1 for o in either if o.stops)},
+        "fault_free_minutes": sum(o.quiet_sim_s for o in outcomes) / 60.0,
+        "burner_events": sum(1 for o in outcomes if o.event.burners),
+        "latency_ms": stats(lat),
+        "latency_ms_by_kind": {k: stats(v) for k, v in sorted(by_kind.items())},
+        "stamp_latency_ms": stats(stamp_lat),
+        "wall_latency_ms_killed": stats(wall),
+        "braking_ticks_max": max(braking) if braking else None,
+        "braking_measured": len(braking),
+        "braking_ticks_killed": stats(braking_killed),
+        "unbraked": unbraked,
+        "rest_judged": len(judged),
+        "at_rest": len(judged) - len(not_at_rest),
+        "rest_s_max": max(rest_s) if rest_s else None,
+        "travel_rad_max": max(travel) if travel else None,
+        "not_at_rest": not_at_rest,
+        "recovery_stops": sum(o.recovery_stops for o in outcomes),
+        "stale_steps": sum(o.stale_steps for o in outcomes),
+        "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
+        "stale_steps_by_event": {k: v for k, v in _stale_by_kind(outcomes).items() if v},
+        "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag, "note": o.note} for o in missed],
+        "false": false,
+    }
+
+
+def _stale_by_kind(outcomes):
+    out = {}
+    for o in outcomes:
+        key = o.event.label().split(" ")[0] + (" " + o.event.target if o.event.target else "")
+        out[key] = out.get(key, 0) + o.stale_steps
+    return out
+
+
+def _f(x):
+    return "-" if x is None else f"{x:.3g}"
+
+
+def table(s):
+    """The score as one Markdown table (rows: the measures; the misses and false stops after it)."""
+    def ms(st):
+        if not st or not st["n"]:
+            return "-"
+        return f"{st['p50']:.1f} / {st['p99']:.1f} / {st['max']:.1f} (n={st['n']})"
+    rows = [
+        ("events (faults expecting a stop)", f"{s['events']} ({s['faults_injected']})"),
+        ("stops / missed stops", f"{s['stops']} / {s['missed_stops']}"),
+        ("false stops", str(s["false_stops"])),
+        ("freezes in the tolerance band (stopped)", f"{s['either']['events']} ({s['either']['stopped']})"),
+        ("fault-free monitored time, simulated min", f"{s['fault_free_minutes']:.2f}"),
+        ("events with CPU burners on", str(s["burner_events"])),
+        ("stop latency from the fault's stamp, ms (p50 / p99 / max)", ms(s["latency_ms"])),
+        ("the stop's own stamp after the fault's, ms", ms(s["stamp_latency_ms"])),
+        ("killed process: wall time to the stop, ms", ms(s["wall_latency_ms_killed"])),
+        ("braking onset after the stop's arrival, ticks (max; killed processes apart)",
+         "-" if s["braking_ticks_max"] is None else f"{s['braking_ticks_max']:g} (n={s['braking_measured']})"),
+        ("  after a killed observer or simulator, ticks (p50 / p99 / max)", ms(s["braking_ticks_killed"])),
+    ]
+    rows.append(("stops judged from the bag: at rest / judged (slowest rest, s; largest travel, rad)",
+                 f"{s['at_rest']} / {s['rest_judged']} ({_f(s['rest_s_max'])}; {_f(s['travel_rad_max'])})"))
+    rows.append(("simulator steps on a stale command (with burners on)",
+                 f"{s['stale_steps']} ({s['stale_steps_burners']}); by event: {s['stale_steps_by_event']}"))
+    rows += [(f"  latency, {k}", ms(v)) for k, v in s["latency_ms_by_kind"].items()]
+    out = ["| measure | value |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
+    for m in s["misses"]:
+        out.append(f"\nmissed: {m['event']} (fault stamp {m['fault_ns']}; {m['note']}) in {m['bag']}")
+    for m in s["not_at_rest"]:
+        out.append(f"\nnot at rest: {m['event']} (fault stamp {m['fault_ns']}): {m['rest']} in {m['bag']}")
+    for m in s["unbraked"]:
+        out.append(f"\nno braking command after the stop: {m}")
+    for f in s["false"]:
+        out.append(f"\nfalse stop: {f['where']} {f['event']}: {f['stop']} in {f['bag']}")
+    return "\n".join(out)

@@ -1,0 +1,99 @@
+"""Issue 17: the fault campaign, short mode (about 3 min), and its schedule and score.
+
+The short campaign is ``benchmarks/fault_campaign.py --short``: the whole simulated system
+over real DDS, two training recordings, the monitor's model identified from them with the
+inflation calibrated by cross-validation, then 12 events of a seeded schedule (simulator
+faults, killed and frozen processes, stamp jumps, a fault-free stretch), each preceded by
+fault-free monitored running. Asserted from the campaign's own JSON: 0 missed stops, 0
+false stops, every stop followed by the controller's braking within one tick of the stop's
+arrival (a killed controller excepted: the drives' watchdog brakes), and every stop's effect
+judged from the recorded bag: the arm at rest. The long campaign and its numbers:
+docs/reliability.md, "Fault campaign" (no timed assertion here)."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reachset_ros.sim import campaign as cp
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_schedule_is_seeded_and_covers_every_kind():
+    a, b = cp.schedule(3, 64), cp.schedule(3, 64)
+    assert a == b and a != cp.schedule(4, 64)
+    kinds = {e.kind for e in a}
+    assert kinds == {"sim", "kill", "freeze", "stamp_jump", "quiet"}
+    assert all(e.expect == "stop" for e in a if e.kind in ("sim", "kill", "stamp_jump"))
+    freezes = [e for e in a if e.kind == "freeze"]
+    assert all(0.05 <= e.seconds <= 0.5 for e in freezes)
+    assert all((e.expect == "none") == (e.seconds < cp.FREEZE_TOLERATED_S) for e in freezes)
+    on = [e.burners for e in a]
+    assert 0.4 <= np.mean(on) <= 0.6 and on[:8] == [True] * 8 and on[8:16] == [False] * 8
+    # the simulator faults: every kind on every joint, each once before any repeats
+    many = [e for e in cp.schedule(0, 400) if e.kind == "sim"]
+    first = {(e.fault, e.joint) for e in many[:len(cp.SIM_FAULTS)]}
+    assert first == {(f, j) for f, j, _ in cp.SIM_FAULTS}
+    with pytest.raises(ValueError, match="unknown event kinds"):
+        cp.schedule(0, 4, kinds=["meteor"])
+
+
+def test_score_counts_misses_false_stops_and_latency():
+    ev = cp.schedule(1, 8)
+    stop = [e for e in ev if e.expect == "stop"]
+    none = [e for e in ev if e.expect == "none"]
+    out = [cp.Outcome(stop[0], fault_ns=1000, stops=[(1000 + 8_000_000, 1000 + 12_000_000, "violation")],
+                      braking_ticks=1.0, quiet_sim_s=30.0),
+           cp.Outcome(stop[1], fault_ns=5000, quiet_sim_s=30.0),                              # missed
+           cp.Outcome(none[0], fault_ns=0, stops=[(7, 8, "missing_data")], quiet_sim_s=30.0),  # false
+           cp.Outcome(none[0], quiet_stops=[(1, 2, "violation")], quiet_sim_s=30.0)]          # false
+    s = cp.score(out)
+    assert (s["faults_injected"], s["stops"], s["missed_stops"], s["false_stops"]) == (2, 1, 1, 2)
+    assert s["latency_ms"]["max"] == pytest.approx(12.0) and s["stamp_latency_ms"]["max"] == pytest.approx(8.0)
+    assert s["fault_free_minutes"] == pytest.approx(2.0)
+    assert s["misses"][0]["event"] == stop[1].label()
+    text = cp.table(s)
+    assert "missed: " + stop[1].label() in text and text.count("false stop:") == 2
+
+
+def test_judge_rest_from_samples():
+    ev = cp.Event(0, "sim", 1.0, "stop", fault="frozen", joint="b")
+    t = np.arange(0, 400) * 4_000_000
+    q = np.zeros((400, 2))
+    qd = np.zeros((400, 2))
+    qd[:50, 0] = 0.5                  # joint a moves for 0.2 s after the stop, then rests
+    q[:50, 0] = np.arange(50) * 0.002
+    q[50:, 0] = q[49, 0]
+    qd[:, 1] = 0.3                    # the frozen sensor of b shows motion: not judged
+    r = cp.judge_rest(ev, ["a", "b"], t, q, qd, 0, int(t[-1]))
+    assert r["ok"] and r["judged"] == 1 and r["rest_s"] == pytest.approx(0.2)
+    qd[:200, 0] = 0.5                 # still moving 0.8 s after the stop: not within REST_WITHIN_S
+    r = cp.judge_rest(cp.Event(0, "kill", 1.0, "stop", target="observer_node"), ["a", "b"], t, q, qd, 0, int(t[-1]))
+    assert not r["ok"] and r["judged"] == 2
+
+
+def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tmp_path):
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "fault_campaign.py"), "--short",
+                        "--workdir", str(tmp_path)], capture_output=True, text=True, timeout=1200)
+    print(p.stdout)
+    print(p.stderr[-6000:])
+    res = json.loads((tmp_path / "campaign.json").read_text())
+    s = res["score"]
+    kinds = {o["event"].split()[0] for o in res["outcomes"]}
+    assert {"sim", "kill", "freeze", "stamp"} <= kinds
+    assert s["faults_injected"] >= 8
+    assert s["missed_stops"] == 0, s["misses"]
+    assert s["false_stops"] == 0, s["false"]
+    assert s["stops"] == s["faults_injected"]
+    # braking: the controller's first braking command at most one tick after the newest
+    # estimate it had when the stop arrived; every stop but a killed process'
+    assert s["unbraked"] == [] and s["braking_ticks_max"] <= 1.0
+    # a killed process: its braking is reported, not asserted (after a SIGKILL Fast DDS can
+    # block the controller's sends for seconds, docs/reliability.md "Fault campaign")
+    # the effect: every judged stop left the arm at rest, read from the recorded bags
+    assert s["rest_judged"] >= s["stops"] - sum(1 for o in res["outcomes"] if o["event"] == "kill sim_node")
+    assert s["not_at_rest"] == [], s["not_at_rest"]
+    assert p.returncode == 0
