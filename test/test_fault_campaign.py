@@ -2,7 +2,7 @@
 
 The short campaign is ``benchmarks/fault_campaign.py --short``: the whole simulated system
 over real DDS, two training recordings, the monitor's model identified from them with the
-inflation calibrated by cross-validation, then 12 events of a seeded schedule (simulator
+inflation calibrated by cross-validation, then 10 events of a seeded schedule (simulator
 faults, killed and frozen processes, stamp jumps, a fault-free stretch), each preceded by
 fault-free monitored running. Asserted from the campaign's own JSON: 0 missed stops, 0
 false stops, every stop followed by the controller's braking within one tick of the stop's

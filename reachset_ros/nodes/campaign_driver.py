@@ -289,21 +289,39 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             info["inflation"] = json.loads(out)["inflation"]
             log(f"[campaign] monitor model identified, calibrated inflation {info['inflation']:g}")
         info["model"] = str(model)
+
+        def block_bag(i):
+            return workdir / f"block{i:03d}", f"recorder_block{i:03d}"
+        # the recorder of a block starts before the monitor judges (a process starting on the
+        # loaded machine is the campaign's apparatus, not a fault): the first before the
+        # reset, each next one at the end of the previous block (a stop it causes is reported
+        # as the apparatus', with the bag, and reset)
+        bag, name = block_bag(0)
+        rec = _record(driver, workdir, bag, MONITOR_TOPICS, name, group)
         ok, why = set_remote_parameters(driver, "monitor_node", {"model_file": str(model)})
         if not ok:
             raise RuntimeError(f"monitor refused the model: {why}")
         reset_monitor()
         sim_wait(RECOVER_S)
         wall0 = time.monotonic()
+        apparatus = []
         for ev in events:
-            if ev.index % 8 == 0:
-                if rec is not None:
-                    launch.stop([rec])
-                bag = workdir / f"block{ev.index // 8:03d}"
-                rec = _record(driver, workdir, bag, MONITOR_TOPICS, f"recorder_block{ev.index // 8:03d}", group)
+            if ev.index % 8 == 0 and ev.index > 0:
+                n = len(lis.stops)
+                bag, name = block_bag(ev.index // 8)
+                new = _record(driver, workdir, bag, MONITOR_TOPICS, name, group)
+                launch.stop([rec])
+                rec = new
+                sim_wait(0.5)
+                if len(lis.stops) > n:
+                    apparatus += [s[:3] + (str(bag),) for s in lis.stops[n:]]
+                    log(f"[campaign] stop while the recorder switched bags (apparatus): {lis.stops[n][2][:160]}")
+                    reset_monitor(patience_s=RESET_PATIENCE_S)
+                    sim_wait(RECOVER_S)
             log(f"[campaign] event {ev.index}: {ev.label()} (expect {ev.expect}; burners "
                 f"{'on' if ev.burners else 'off'}; {ev.quiet_s:g} s fault-free before)")
             outcomes.append(run_event(ev, bag))
+        info["apparatus_stops"] = apparatus
         info["wall_s"] = time.monotonic() - wall0
         if rec is not None:
             launch.stop([rec])

@@ -216,7 +216,7 @@ def _pct(x, p):
     return float(np.percentile(np.asarray(x, float), p)) if len(x) else None
 
 
-def score(outcomes, dt_ns=4_000_000):
+def score(outcomes, apparatus_stops=()):
     """The campaign's table from the outcomes.
 
     Returns
@@ -291,6 +291,7 @@ def score(outcomes, dt_ns=4_000_000):
         "stale_steps": sum(o.stale_steps for o in outcomes),
         "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
         "stale_steps_by_event": {k: v for k, v in _stale_by_kind(outcomes).items() if v},
+        "apparatus_stops": [list(a) for a in apparatus_stops],
         "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag, "note": o.note} for o in missed],
         "false": false,
     }
@@ -334,6 +335,9 @@ def table(s):
                  f"{s['stale_steps']} ({s['stale_steps_burners']}); by event: {s['stale_steps_by_event']}"))
     rows += [(f"  latency, {k}", ms(v)) for k, v in s["latency_ms_by_kind"].items()]
     out = ["| measure | value |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
+    if s.get("apparatus_stops"):
+        out.append(f"\nstops while the campaign's recorder switched bags (apparatus, not scored): "
+                   f"{len(s['apparatus_stops'])}: " + "; ".join(f"{a[2][:120]} in {a[3]}" for a in s["apparatus_stops"]))
     for m in s["misses"]:
         out.append(f"\nmissed: {m['event']} (fault stamp {m['fault_ns']}; {m['note']}) in {m['bag']}")
     for m in s["not_at_rest"]:
