@@ -905,6 +905,63 @@ class TestControllerNode:
         assert_law(bus, tracking_law(10.0, 1.0))
 
 
+class TestStopWithoutEstimates:
+    def test_a_safe_stop_without_estimates_engages_every_brake(self, bus, controller):
+        """Issue 17 (found by the fault campaign): the observer killed, the monitor's missing-data
+        stop arrives, but the braking law has no estimate to act on. Before, the controller
+        sent nothing and the drives held its last command; now every holding brake engages
+        STOP_ESTIMATE_TIMEOUT after the last estimate, on /brake_command, which also says
+        when braking began and which estimate the controller had when the stop arrived."""
+        from reachset_msgs.msg import BrakeCommand
+        proc, _, _ = controller
+        bus.clear()
+        brakes = []
+        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+        try:
+            assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1, 30)
+            stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no stop"))
+            ts = stamps(5)
+            assert outputs_match(drive(bus, ts), tracking_law(10.0, 1.0))
+            assert not any(list(brakes)[-1].engage) and list(brakes)[-1].braking_since_ns == 0
+            stop = SafeStop(active=True, kind="missing_data", reason="test: the observer died")
+            to_stamp(stop.header.stamp, ts[-1])
+            stop_pub.publish(stop)          # and no estimate comes any more
+            assert bus.wait(lambda: any(all(b.engage) for b in list(brakes)), 15), list(brakes)[-3:]
+            b = next(b for b in list(brakes) if all(b.engage))
+            assert "no estimate" in b.reason and b.stop_received_ns == ts[-1] and b.braking_since_ns == ts[-1], b
+            assert "safe stop without estimates" in proc.log.read_text()
+        finally:
+            stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: reset"))
+            time.sleep(0.2)
+            bus.listener.destroy_subscription(bsub)
+            bus.caller.destroy_publisher(stop_pub)
+
+
+class TestSimulatorReportsStaleCommands:
+    def test_stale_command_steps_are_reported_and_the_drives_brake(self, bus, tmp_path):
+        """Issue 17.3: the simulator never steps on a stale command silently. With no
+        controller at all, each tick waits ``lockstep_timeout`` and steps on the held command:
+        every such step is counted on /diagnostics (WARN, ``stale_effort``, the longest run)
+        and logged, and after ``drive_watchdog_steps`` of them in a row the simulated drives
+        engage every holding brake (``drive_watchdog``), as a drive's communication watchdog
+        does. Before, the count appeared only in the log at shutdown."""
+        sim = launch.start("sim_node", {"seed": 1, "lockstep_timeout": 0.02, "drive_watchdog_steps": 3,
+                                        "publish_clock": False}, tmp_path)
+        try:
+            name = "reachset_ros: simulator"
+            assert bus.wait(lambda: name in bus.diags and int(bus.diags[name][2].get("stale_effort", 0)) >= 5, 30), \
+                sim.log.read_text()[-2000:]
+            level, message, values, _ = bus.diags[name]
+            assert level == DiagnosticStatus.WARN and "stale command" in message, (level, message)
+            assert int(values["drive_watchdog"]) == 1 and int(values["stale_run_max"]) >= 3, values
+            log = sim.log.read_text()
+            assert "stepped on a stale command" in log and "drive watchdog: 3 consecutive steps" in log
+        finally:
+            launch.stop([sim])
+
+
 class TestAbsurdCommand:
     def test_a_non_finite_command_is_never_sent_it_stops_with_brakes(self, bus, tmp_path):
         """Issue 19.2: an overflowing law (a finite but absurd reference, 1e308 rad) gives a
