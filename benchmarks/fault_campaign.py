@@ -34,15 +34,22 @@ def main(argv=None):
     ap.add_argument("--train-runs", type=int, default=3, help="training recordings (each a calibration fold)")
     ap.add_argument("--burners", type=float, default=0.5, choices=(0.0, 0.5, 1.0))
     ap.add_argument("--kinds", nargs="+", default=None, help="only these event kinds")
+    ap.add_argument("--sim-faults", nargs="+", default=None, help="only these simulator fault kinds")
     ap.add_argument("--model", default=None, help="the monitor's model (skips training and identification)")
     ap.add_argument("--workdir", default=None)
+    ap.add_argument("--rescore", default=None, metavar="WORK",
+                    help="score an earlier campaign again from its campaign.json and bags (the same --events, "
+                         "--seed, --quiet, --burners, --kinds as its run): each stop's effect judged anew")
     ap.add_argument("--short", action="store_true", help="the make-test variant: 10 events, no burners")
     a = ap.parse_args(argv)
     if a.short:
         a.events, a.quiet, a.burners, a.train = 10, (1.0, 2.0), 0.0, 20.0
+    events = cp.schedule(a.seed, a.events, quiet_s=tuple(a.quiet), burner_share=a.burners, kinds=a.kinds,
+                         sim_faults=a.sim_faults)
+    if a.rescore:
+        return rescore(Path(a.rescore), events)
     work = Path(a.workdir or tempfile.mkdtemp(prefix="fault_campaign_")).resolve()
     os.environ["ROS_DOMAIN_ID"] = str(pick_domain_id())
-    events = cp.schedule(a.seed, a.events, quiet_s=tuple(a.quiet), burner_share=a.burners, kinds=a.kinds)
     print(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} workdir {work}", file=sys.stderr, flush=True)
     outcomes, info = run_campaign(work, events, seed=a.seed, train=a.train, model=a.model,
                                   train_runs=a.train_runs,
@@ -50,9 +57,30 @@ def main(argv=None):
     score = cp.score(outcomes, info.get("apparatus_stops", ()))
     (work / "campaign.json").write_text(json.dumps({"info": info, "score": score,
                                                      "outcomes": [o.as_dict() for o in outcomes]}, indent=1))
+    return report(score)
+
+
+def report(score):
     print(cp.table(score))
-    print(json.dumps({k: v for k, v in score.items() if k not in ("misses", "false")}, indent=1))
+    print(json.dumps({k: v for k, v in score.items() if k not in ("misses", "false", "not_at_rest")}, indent=1))
     return 0 if score["missed_stops"] == 0 and score["false_stops"] == 0 else 1
+
+
+def rescore(work, events):
+    """The outcomes of ``work/campaign.json`` with the stops judged again from its bags."""
+    from reachset_ros.nodes.campaign_driver import judge_stops
+    res = json.loads((work / "campaign.json").read_text())
+    if [e.label() for e in events] != [o["event"] for o in res["outcomes"]]:
+        sys.exit("fault_campaign: error: the schedule of these arguments is not the campaign's (use its --events, "
+                 "--seed, --quiet, --burners, --kinds)")
+    outcomes = []
+    for e, o in zip(events, res["outcomes"]):
+        fields = {k: v for k, v in o.items() if k not in ("event", "rest")}
+        fields["stops"] = [tuple(x) for x in fields["stops"]]
+        fields["quiet_stops"] = [tuple(x) for x in fields["quiet_stops"]]
+        outcomes.append(cp.Outcome(e, **{k: v for k, v in fields.items() if k in cp.Outcome.__dataclass_fields__}))
+    judge_stops(outcomes)
+    return report(cp.score(outcomes, res["info"].get("apparatus_stops", ())))
 
 
 if __name__ == "__main__":

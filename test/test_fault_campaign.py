@@ -49,12 +49,18 @@ def test_score_counts_misses_false_stops_and_latency():
                       braking_ticks=1.0, quiet_sim_s=30.0),
            cp.Outcome(stop[1], fault_ns=5000, quiet_sim_s=30.0),                              # missed
            cp.Outcome(none[0], fault_ns=0, stops=[(7, 8, "missing_data")], quiet_sim_s=30.0),  # false
-           cp.Outcome(none[0], quiet_stops=[(1, 2, "violation")], quiet_sim_s=30.0)]          # false
+           cp.Outcome(none[0], quiet_stops=[(1, 2, "violation")], quiet_sim_s=30.0),          # false
+           cp.Outcome(cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a"), fault_ns=100,
+                      note="unobservable: the joint's reference did not move")]                # not scored
     s = cp.score(out)
     assert (s["faults_injected"], s["stops"], s["missed_stops"], s["false_stops"]) == (2, 1, 1, 2)
     assert s["latency_ms"]["max"] == pytest.approx(12.0) and s["stamp_latency_ms"]["max"] == pytest.approx(8.0)
     assert s["fault_free_minutes"] == pytest.approx(2.0)
-    assert s["misses"][0]["event"] == stop[1].label()
+    assert s["misses"][0]["event"] == stop[1].label() and len(s["unobservable"]) == 1
+    # a frozen sensor's latency counts from its joint's first motion after the fault
+    fr = cp.Outcome(cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a"), fault_ns=0,
+                    observable_ns=500_000_000, stops=[(520_000_000, 524_000_000, "violation")])
+    assert cp.score([fr])["latency_ms"]["max"] == pytest.approx(24.0)
     text = cp.table(s)
     assert "missed: " + stop[1].label() in text and text.count("false stop:") == 2
 

@@ -699,6 +699,15 @@ class TestMonitorNode:
 Q_TEST = np.array([0.1, -0.2])
 
 
+def wait_exit(proc, timeout):
+    end = time.monotonic() + timeout
+    while proc.alive():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.05)
+    return True
+
+
 def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2):
     """A controller_node for these tests: category 2 by default (the braking law's output is
     what they check; the holding brakes of category 1 are tested in test_stopping.py and
@@ -1224,6 +1233,108 @@ class TestResetNeedsClearedCondition:
             assert r.success, r.message
             assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset")
             assert "reset refused" in proc.log.read_text() and proc.alive()
+        finally:
+            launch.stop([proc])
+
+
+class TestPrivilegedOperations:
+    def test_resets_and_gain_changes_are_logged_with_caller_and_reason(self, bus, tmp_path):
+        """Issue 17.4: a reset of the safe stop and a gain change are the two ways to move an
+        arm the monitor stopped. ``~/reset_stop`` (reachset_msgs/ResetStop) names the caller
+        and the reason; every request, refused or granted, is one PRIVILEGED log line with
+        them, the outcome and the nodes with a client of the service in the graph (here this
+        test's ``faults_caller``). ``~/reset`` (Trigger) is logged as naming no caller. A
+        gain change logs its ``change_reason``, granted or refused. Before: a reset was
+        logged only when refused, without caller or reason; gain changes not at all."""
+        from reachset_msgs.srv import ResetStop
+        path = write_model(tmp_path / "m.yaml")
+        mon = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+                                            "window_dir": str(tmp_path / "windows")}, tmp_path)
+        ctl = start_controller(tmp_path, path)
+        cli = bus.caller.create_client(ResetStop, "/monitor_node/reset_stop")
+
+        def reset_stop(caller, reason):
+            fut = cli.call_async(ResetStop.Request(caller=caller, reason=reason))
+            rclpy.spin_until_future_complete(bus.caller, fut, timeout_sec=15.0)
+            assert fut.done()
+            return fut.result()
+        try:
+            assert cli.wait_for_service(timeout_sec=30.0), mon.log.read_text()
+            assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
+                            and bus.listener.count_publishers("/conformance/status"), 30), mon.log.read_text()
+            bus.clear()
+            Y, U = stream(60, seed=31)
+            Y[50, 1] = math.nan
+            bus.send_ticks(stamps(60), Y, U)
+            assert bus.wait(lambda: bus.active_stops(), 15)
+            r = reset_stop("operator_console", "fault cleared by the operator")
+            assert not r.success and "has not cleared" in r.message
+            n = HISTORY + 2 * (HORIZON + 1) + 5
+            Y, U = stream(n, seed=32)
+            ts = stamps(n)
+            bus.send_ticks(ts, Y, U)
+            assert bus.wait(lambda: len(bus.statuses(ts)) == n, 20)
+            r = reset_stop("operator_console", "fault cleared by the operator")
+            assert r.success, r.message
+            assert bus.wait(lambda: not bus.stops[-1].active and "operator_console" in bus.stops[-1].reason)
+            assert bus.call_trigger("/monitor_node/reset").success
+            lines = [l for l in mon.log.read_text().splitlines() if "PRIVILEGED" in l]
+            assert len(lines) == 3, lines
+            assert all("caller operator_console" in l and "'fault cleared by the operator'" in l for l in lines[:2])
+            assert "refused" in lines[0] and "granted" in lines[1] and "/faults_caller" in lines[1]
+            assert "through ~/reset:" in lines[2] and "caller not named" in lines[2] and "no reason given" in lines[2]
+            # gain changes: granted and refused, each with its reason
+            assert bus.wait(lambda: bus.listener.count_publishers("/plant_input") >= 1, 30)
+            ok, why = bus.set_params("controller_node", {"omega": [12.0], "change_reason": "test: faster"})
+            assert ok, why
+            ok, why = bus.set_params("controller_node", {"omega": [-1.0], "change_reason": "test: bad"})
+            assert not ok
+            ok, _ = bus.set_params("controller_node", {"stop_max_time": 0.25})    # not a gain: no line
+            assert ok
+            glines = [l for l in ctl.log.read_text().splitlines() if "PRIVILEGED gain change" in l]
+            assert len(glines) == 2, glines
+            assert "omega=[12.0]" in glines[0] and "'test: faster'" in glines[0] and "granted" in glines[0]
+            assert "omega=[-1.0]" in glines[1] and "refused: gain omega must be" in glines[1]
+            assert "clients of /controller_node/set_parameters" in glines[0]   # names as discovery has them
+        finally:
+            bus.caller.destroy_client(cli)
+            launch.stop([ctl, mon])
+
+
+    def test_the_sros2_policy_grants_the_privileged_services_to_one_enclave_each(self):
+        """config/sros2/reachset_policy.xml (not enforceable here: no DDS-Security in the
+        PyPI Fast DDS): only the operator enclave may request the monitor's resets, only the
+        synthesis enclave the controller's and observer's set_parameters."""
+        import xml.etree.ElementTree as ET
+        from pathlib import Path
+        root = ET.parse(Path(__file__).resolve().parents[1] / "config" / "sros2" / "reachset_policy.xml").getroot()
+        requesters = {}
+        for enclave in root.iter("enclave"):
+            for services in enclave.iter("services"):
+                if services.get("request") == "ALLOW":
+                    for sv in services.iter("service"):
+                        requesters.setdefault(sv.text, set()).add(enclave.get("path"))
+        assert requesters["/monitor_node/reset_stop"] == {"/reachset/operator"}
+        assert requesters["/monitor_node/reset"] == {"/reachset/operator"}
+        for node in ("controller_node", "observer_node"):
+            for srv in ("set_parameters", "set_parameters_atomically"):
+                assert requesters[f"/{node}/{srv}"] == {"/reachset/synthesis"}
+
+    def test_enforced_security_without_credentials_does_not_start(self, tmp_path):
+        """What of SROS2 runs here (docs/reliability.md, "Privileged operations"): with
+        ``ROS_SECURITY_ENABLE=true`` and ``ROS_SECURITY_STRATEGY=Enforce`` the node does not
+        start (exit status not 0): enforcement fails closed. Here it is refused because the
+        PyPI Fast DDS is built without the DDS-Security libraries (the log says so), so
+        enclaves with credentials and permissions cannot be tested on this machine."""
+        keystore = tmp_path / "keystore"
+        (keystore / "enclaves").mkdir(parents=True)
+        env = dict(os.environ, ROS_SECURITY_ENABLE="true", ROS_SECURITY_STRATEGY="Enforce",
+                   ROS_SECURITY_KEYSTORE=str(keystore))
+        proc = launch.start("monitor_node", {}, tmp_path, env=env)
+        try:
+            assert wait_exit(proc, 60), "the monitor started without credentials"
+            assert proc.exit_status() not in (0, None)
+            assert "doesn't have the security libraries" in proc.log.read_text(), proc.log.read_text()
         finally:
             launch.stop([proc])
 

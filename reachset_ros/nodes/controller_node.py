@@ -49,7 +49,8 @@ from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems.stopping import StopPolicy, StopState, stop_tick
 from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
-from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, proposed_values,
+from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
+                          proposed_values,
                           validate_pair)
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
@@ -240,6 +241,11 @@ class ControllerNode(Node):
             self.transient = None
 
     def on_set_parameters(self, params):
+        result = self.check_and_apply(params)
+        log_gain_change(self, params, result)
+        return result
+
+    def check_and_apply(self, params):
         values = proposed_values(self, params)
         model = self.model
         for p in params:

@@ -5,6 +5,8 @@ joint (:func:`gains_from`), the type the synthesis certifies and writes into the
 file: ``observer``, ``controller`` and ``eso_input`` (which plant input the ESO is fed) are
 one string per node, the numbers one value per joint or one for all.
 """
+from array import array
+
 import numpy as np
 
 from ..errors import ReachsetError
@@ -35,6 +37,33 @@ def declare_gain_parameters(node):
                                 "u_p[k] (an algebraic loop the controller solves); as in the model file's gains"))
     for k, (d, lo, hi) in GAIN_DOCS.items():
         node.declare_parameter(k, [float(DEFAULTS[k])], desc(d + "; one value per joint, or one for all"))
+    node.declare_parameter("change_reason", "",
+                           desc("why the gains or the model change: set in the same request as them, logged with "
+                                "the change (a PRIVILEGED line, granted or refused)"))
+
+
+#: parameters whose change moves the arm differently (a privileged operation, issue 17.4)
+GAIN_CHANGE_PARAMS = ("observer", "controller", "eso_input", *GAIN_DOCS, "model_file", "u_max", "u_ff_bound",
+                      "allow_uncertified")
+
+
+def log_gain_change(node, params, result):
+    """A ``PRIVILEGED`` log line for a parameter request that changes the gains or the model
+    (:func:`reachset_ros.nodes.audit.log_privileged`), granted or refused; with the
+    ``change_reason`` set in the same request. Parameter requests name no caller: the line
+    lists the nodes with a client of this node's parameter services."""
+    from .audit import log_privileged
+    changed = [p for p in params if p.name in GAIN_CHANGE_PARAMS]
+    if not changed:
+        return
+    reason = next((str(p.value) for p in params if p.name == "change_reason"), "")
+    what = ", ".join(f"{p.name}={list(p.value) if isinstance(p.value, (list, tuple, array)) else p.value!r}"
+                     for p in changed)
+    if len(what) > 300:
+        what = what[:300] + "..."
+    outcome = "granted" if result.successful else f"refused: {result.reason}"
+    services = [node.resolve_service_name("~/set_parameters"), node.resolve_service_name("~/set_parameters_atomically")]
+    log_privileged(node, f"gain change ({what})", "", reason, outcome, services)
 
 
 def declare_certificate_parameters(node):

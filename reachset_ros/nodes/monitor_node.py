@@ -7,8 +7,9 @@ violation, or on a fault (missing data for more than ``max_missing_ticks`` ticks
 invalid sample, a joint-name mismatch, a stamp going backwards, a stream on which the test
 cases the model needs cannot be formed: ``coverage``), it publishes a latched
 ``/safe_stop`` (reliable, transient local) and writes the offending window (the last
-k* + history ticks) to a bag. Only the ``~/reset`` service (std_srvs/Trigger) clears the
-stop. The model (sets, horizon, estimator) comes from ``model_file`` and can be swapped
+k* + history ticks) to a bag. Only a reset clears the stop: ``~/reset`` (std_srvs/Trigger)
+or ``~/reset_stop`` (reachset_msgs/ResetStop, naming the caller and the reason); refused
+while the stop's condition persists, logged either way (``PRIVILEGED``). The model (sets, horizon, estimator) comes from ``model_file`` and can be swapped
 through the parameter service; a refused change leaves the running model as it was.
 Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
 ``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes. A tick
@@ -29,6 +30,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from reachset_msgs.msg import ConformanceStatus, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
+from reachset_msgs.srv import ResetStop
 from std_srvs.srv import Trigger
 
 from ..conformance import model as mdl
@@ -36,6 +38,7 @@ from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
+from .audit import log_privileged
 from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
@@ -320,6 +323,7 @@ class MonitorNode(Node):
         if source != "effort":
             self.create_subscription(PlantInput, "plant_input", self.on_plant_input, INPUT_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
+        self.create_service(ResetStop, "~/reset_stop", self.on_reset_stop)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
         self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
@@ -552,12 +556,25 @@ class MonitorNode(Node):
         return (self.core.model.horizon + 1 if self.core is not None else 0) if n < 0 else n
 
     def on_reset(self, request, response):
+        """``~/reset`` (std_srvs/Trigger, which names no caller): :meth:`reset_stop`."""
+        response.success, response.message = self.reset_stop("", "", "~/reset")
+        return response
+
+    def on_reset_stop(self, request, response):
+        """``~/reset_stop`` (reachset_msgs/ResetStop: the caller and the reason): :meth:`reset_stop`."""
+        response.success, response.message = self.reset_stop(request.caller, request.reason, "~/reset_stop")
+        return response
+
+    def reset_stop(self, caller, reason, via):
         """Clear the safe stop, only once its cause has cleared: the monitor keeps checking
         while stopped (the held arm against the model), and a reset needs ``reset_clean_ticks``
         consecutive ticks checked to k*, all conformant, no fault, the last one within the
-        missing-data limit (fresh data). Refused otherwise, with the reason (``success`` false)."""
+        missing-data limit (fresh data). Refused otherwise, with the reason. Every request,
+        granted or refused, is a ``PRIVILEGED`` log line (:mod:`reachset_ros.nodes.audit`).
+        Returns ``(success, message)``."""
         was = self.stop_active
         need = self.clean_needed()
+        services = [self.resolve_service_name("~/reset"), self.resolve_service_name("~/reset_stop")]
         if was and need > 0:
             limit = self.get_parameter("max_missing_ticks").value * self.get_parameter("dt").value
             fresh = self.last_tick_wall is not None and time.monotonic() - self.last_tick_wall <= limit
@@ -565,17 +582,17 @@ class MonitorNode(Node):
                 why = (f"reset refused: the stop's condition has not cleared: {self.clean_ticks} of {need} "
                        f"consecutive ticks checked to k* and conformant (last not: {self.last_unclean})"
                        if fresh else "reset refused: no checked tick within the missing-data limit (no fresh data)")
-                self.get_logger().warning(why)
-                response.success, response.message = False, why
-                return response
+                log_privileged(self, f"safe-stop reset through {via}", caller, reason, why, services)
+                return False, why
         self.clean_ticks, self.last_unclean = 0, "no tick checked since the reset"
         if self.core is not None:
             self.core.reset()
         self.restart_watchdog()
-        self.publish_stop_state(False, "reset", "reset through ~/reset")
-        response.success = True
-        response.message = "safe stop cleared" if was else "no safe stop was active"
-        return response
+        by = f" by {caller}" if caller else ""
+        self.publish_stop_state(False, "reset", f"reset through {via}{by}" + (f": {reason.strip()}" if reason else ""))
+        message = "safe stop cleared" if was else "no safe stop was active"
+        log_privileged(self, f"safe-stop reset through {via}", caller, reason, f"granted ({message})", services)
+        return True, message
 
     def publish_diagnostics(self):
         arr = DiagnosticArray()

@@ -25,7 +25,8 @@ from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, desc, spin_node, stamp_ns
-from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, proposed_values,
+from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
+                          proposed_values,
                           validate_pair)
 
 
@@ -98,8 +99,11 @@ class ObserverNode(Node):
                     model = mdl.load(p.value) if p.value else None
             self.configure(proposed_values(self, params), model)
         except ReachsetError as e:
-            return SetParametersResult(successful=False, reason=str(e))
-        return SetParametersResult(successful=True)
+            result = SetParametersResult(successful=False, reason=str(e))
+        else:
+            result = SetParametersResult(successful=True)
+        log_gain_change(self, params, result)
+        return result
 
     def on_joint_states(self, msg):
         stamp = stamp_ns(msg.header.stamp)

@@ -387,7 +387,11 @@ class SynthesisNode(Node):
             if values is None:
                 return False, why
             values["model_file"] = model_file
-            plan.append((node, values, {k: current[k] for k in values}))
+            previous = {k: current[k] for k in values}
+            # the reason goes with the change into the PRIVILEGED log line of the target
+            values["change_reason"] = f"{self.get_name()}: applying the synthesis {model_file}"
+            previous["change_reason"] = f"{self.get_name()}: rolled back, another target refused {model_file}"
+            plan.append((node, values, previous))
         if "monitor_node" in targets:
             current, why = get_remote_parameters(self.client_node, "monitor_node", ["model_file"])
             if current is None:
@@ -409,7 +413,7 @@ class SynthesisNode(Node):
         doc = {}
         for node, values, _ in plan:
             doc[node] = {"ros__parameters": {k: (list(v) if isinstance(v, (list, tuple)) else v)
-                                             for k, v in values.items()}}
+                                             for k, v in values.items() if k != "change_reason"}}
         path = Path(self.get_parameter("workdir").value).resolve() / "applied_gains.params.yaml"
         try:
             write_yaml(path, doc, header="# written by synthesis_node after applying a synthesis; "

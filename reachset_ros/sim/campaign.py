@@ -12,7 +12,11 @@ What each event is expected to do (``Event.expect``):
   watchdog stops), a sample whose stamp jumps back (a second publisher on
   ``/joint_states``: the monitor's ``stamp_backwards`` fault). A missed stop is an event of
   this kind with no new active stop within :data:`DETECT_WITHIN_S` of simulated time
-  (``DETECT_WITHIN_WALL_S`` of wall time for a killed process, whose clock may stop).
+  (``DETECT_WITHIN_WALL_S`` of wall time for a killed process, whose clock may stop). A
+  frozen sensor changes nothing while its joint rests: its window (and its latency) starts
+  at the first reference motion of the joint after the fault (:data:`FROZEN_MOTION`); a
+  joint that does not move within :data:`FROZEN_WAIT_S` makes the event ``unobservable``
+  (reported, neither a stop nor a miss).
 * ``none``: a perturbation the system must ride through: a process frozen (SIGSTOP, then
   SIGCONT) for less than :data:`FREEZE_TOLERATED_S`; the simulator waits for its command
   (lockstep) and every topic is queued. Any stop then, or in the fault-free stretch before
@@ -40,6 +44,12 @@ __all__ = ["Event", "Outcome", "SIM_FAULTS", "schedule", "score", "table", "DETE
 DETECT_WITHIN_S = 1.0
 #: ... or this much wall time (a killed or frozen simulator stops the simulation's clock)
 DETECT_WITHIN_WALL_S = 5.0
+#: a frozen sensor is observable only once its joint moves: the detection window starts at the
+#: first reference with |qd_d| above this (rad/s) after the fault ...
+FROZEN_MOTION = 0.05
+#: ... awaited this long (simulated s); a joint whose reference does not move is reported
+#: as ``unobservable``, neither stopped nor missed
+FROZEN_WAIT_S = 10.0
 #: freezes shorter than this must not stop (the monitor's missing-data limit is 0.5 s)
 FREEZE_TOLERATED_S = 0.4
 #: processes the campaign kills (SIGKILL) and restarts
@@ -110,6 +120,12 @@ class Outcome:
     reset_ns: int = 0                 # the simulation's time when the reset after the stop succeeded
     rest: dict = None                 # the stop's effect from the bag (:func:`judge_rest`)
     stale_steps: int = 0              # simulator steps on a stale command during the event (its /diagnostics)
+    observable_ns: int = 0            # frozen sensor: first reference motion of its joint after the fault
+
+    def latency_from(self):
+        """The stamp latencies count from: the fault's, or for a frozen sensor the first
+        motion of its joint's reference after it (the fault is not observable before)."""
+        return self.observable_ns or self.fault_ns
     bag: str = ""                     # the bag holding the event
     note: str = ""
 
@@ -119,7 +135,7 @@ class Outcome:
         return d
 
 
-def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kinds=None):
+def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kinds=None, sim_faults=None):
     """A seeded campaign of ``n_events`` events.
 
     The faults cycle through every simulator fault on every joint (:data:`SIM_FAULTS`), every
@@ -138,6 +154,8 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
         0 (never), 0.5 (every other block) or 1 (always).
     kinds : iterable of str, optional
         Restrict to these event kinds (``sim``, ``kill``, ``freeze``, ``stamp_jump``, ``quiet``).
+    sim_faults : iterable of str, optional
+        Restrict the simulator faults to these kinds (``acceleration``, ``frozen``, ...).
 
     Returns
     -------
@@ -145,7 +163,8 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
     """
     rng = np.random.default_rng(seed)
     pools = {
-        "sim": [dict(fault=f, joint=j, magnitude=m) for f, j, m in SIM_FAULTS],
+        "sim": [dict(fault=f, joint=j, magnitude=m) for f, j, m in SIM_FAULTS
+                if sim_faults is None or f in sim_faults],
         "kill": [dict(target=t) for t in KILLABLE],
         "freeze": [dict(target=t) for t in FREEZABLE],
         "stamp_jump": [dict()],
@@ -194,16 +213,25 @@ def judge_rest(event, names, stamps_ns, q, qd, stop_ns, until_ns):
     stop, :func:`~reachset_ros.systems.stopping.rest_after_stop`). The joint of a frozen
     sensor cannot show rest and is not judged (the arm's true state is not recorded; the
     stop law on the true state is checked by test/test_stopping.py). Returns a dict
-    (``ok``, ``rest_s``, ``travel_rad``, ``judged``, ``seconds``, ``why``)."""
+    (``ok``, ``rest_s``, ``travel_rad``, ``judged``, ``seconds``, ``why``); ``ok`` None when
+    the reset came less than ``REST_WITHIN_S`` after the stop (nothing to judge). The 3 NaN
+    samples of a ``nan`` fault are left out (they are the sensor fault, not the arm's motion)."""
     from ..systems.stopping import rest_after_stop
     from .safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
     stamps_ns = np.asarray(stamps_ns, np.int64)
     keep = (stamps_ns >= stop_ns) & (stamps_ns <= until_ns)
     judged = [j for j, n in enumerate(names) if not (event.kind == "sim" and event.fault == "frozen"
                                                      and n == event.joint)]
+    q, qd = np.asarray(q, float), np.asarray(qd, float)
+    if event.kind == "sim" and event.fault == "nan":
+        # the fault's own samples (NaN by design) are the sensor's, not the arm's motion
+        keep &= np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(qd), axis=1)
     if keep.sum() < 2:
         return {"ok": False, "why": "no samples between the stop and the reset", "judged": len(judged)}
-    q, qd = np.asarray(q, float)[keep][:, judged], np.asarray(qd, float)[keep][:, judged]
+    if (min(int(until_ns), int(stamps_ns[keep][-1])) - stop_ns) * 1e-9 < REST_WITHIN_S:
+        return {"ok": None, "why": f"not judged: the reset came {(until_ns - stop_ns) * 1e-9:.3f} s after the stop "
+                                   f"(less than {REST_WITHIN_S:g} s)", "judged": 0}
+    q, qd = q[keep][:, judged], qd[keep][:, judged]
     rep = rest_after_stop([names[j] for j in judged], stamps_ns[keep], q, qd, stop_ns)
     fails = rep.failures(REST_WITHIN_S, TRAVEL_WITHIN_RAD)
     rest = [r for r in rep.rest_s if r is not None]
@@ -232,7 +260,8 @@ def score(outcomes, apparatus_stops=()):
         arrival at the controller, ticks; killed controllers excluded), ``misses`` and
         ``false`` (each with its event, stamps and bag).
     """
-    faults = [o for o in outcomes if o.event.expect == "stop"]
+    unobservable = [o for o in outcomes if o.event.expect == "stop" and o.note.startswith("unobservable")]
+    faults = [o for o in outcomes if o.event.expect == "stop" and o not in unobservable]
     stopped = [o for o in faults if o.stops]
     missed = [o for o in faults if not o.stops]
     false = []
@@ -243,8 +272,8 @@ def score(outcomes, apparatus_stops=()):
         if o.event.expect == "none" and o.stops:
             false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
                           "bag": o.bag})
-    lat = [(o.stops[0][1] - o.fault_ns) * 1e-6 for o in stopped]
-    stamp_lat = [(o.stops[0][0] - o.fault_ns) * 1e-6 for o in stopped]
+    lat = [(o.stops[0][1] - o.latency_from()) * 1e-6 for o in stopped]
+    stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in stopped]
     by_kind = {}
     for o, x in zip(stopped, lat):
         key = o.event.fault if o.event.kind == "sim" else o.event.kind
@@ -256,7 +285,7 @@ def score(outcomes, apparatus_stops=()):
     braking = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind != "kill"]
     braking_killed = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind == "kill"]
     unbraked = [o.event.label() for o in stopped if o.braking_ticks is None and o.event.kind != "kill"]
-    judged = [o for o in stopped if o.rest is not None]
+    judged = [o for o in outcomes if o.stops and o.rest is not None and o.rest["ok"] is not None]
     not_at_rest = [{"event": o.event.label(), "fault_ns": o.fault_ns, "rest": o.rest, "bag": o.bag}
                    for o in judged if not o.rest["ok"]]
     rest_s = [o.rest["rest_s"] for o in judged if o.rest.get("rest_s") is not None]
@@ -268,6 +297,7 @@ def score(outcomes, apparatus_stops=()):
     return {
         "events": len(outcomes),
         "faults_injected": len(faults),
+        "unobservable": [o.event.label() for o in unobservable],
         "stops": len(stopped),
         "missed_stops": len(missed),
         "false_stops": len(false),
@@ -318,6 +348,7 @@ def table(s):
     rows = [
         ("events (faults expecting a stop)", f"{s['events']} ({s['faults_injected']})"),
         ("stops / missed stops", f"{s['stops']} / {s['missed_stops']}"),
+        ("frozen sensors whose joint did not move (unobservable, not scored)", str(len(s.get("unobservable", [])))),
         ("false stops", str(s["false_stops"])),
         ("freezes in the tolerance band (stopped)", f"{s['either']['events']} ({s['either']['stopped']})"),
         ("fault-free monitored time, simulated min", f"{s['fault_free_minutes']:.2f}"),
