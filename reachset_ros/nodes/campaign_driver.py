@@ -280,7 +280,8 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 mine = [b for b in lis.brakes[nb:] if b[1] > 0]
                 if mine:
                     o.braking_ticks = (mine[0][0] - mine[0][1]) / 4e6
-            log(f"[campaign]   stop {o.stops[0][2][:140]!r}: {(o.stops[0][1] - o.latency_from()) * 1e-6:.1f} ms after the "
+            after = (o.stops[0][1] - o.latency_from()) * 1e-6
+            log(f"[campaign]   stop {o.stops[0][2][:140]!r}: {after:.1f} ms after the "
                 f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
                 f"{o.braking_ticks} ticks after its arrival")
         elif ev.expect == "stop" and not o.note:
@@ -306,7 +307,8 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 launch.stop([r])
                 bags.append(bag)
             model = workdir / "monitor_model.yaml"
-            cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", str(train_runs),
+            cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags),
+                   "--calibrate", str(train_runs),
                    "--out", str(model), "--json"]
             p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             out, err = p.communicate()

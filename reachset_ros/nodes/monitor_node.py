@@ -9,8 +9,9 @@ cases the model needs cannot be formed: ``coverage``), it publishes a latched
 ``/safe_stop`` (reliable, transient local) and writes the offending window (the last
 k* + history ticks) to a bag. Only a reset clears the stop: ``~/reset`` (std_srvs/Trigger)
 or ``~/reset_stop`` (reachset_msgs/ResetStop, naming the caller and the reason); refused
-while the stop's condition persists, logged either way (``PRIVILEGED``). The model (sets, horizon, estimator) comes from ``model_file`` and can be swapped
-through the parameter service; a refused change leaves the running model as it was.
+while the stop's condition persists, logged either way (``PRIVILEGED``). The model (sets,
+horizon, estimator) comes from ``model_file`` and can be swapped through the parameter
+service; a refused change leaves the running model as it was.
 Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
 ``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes. A tick
 at which nothing was checked is published with ``conformant`` false (a violation is a

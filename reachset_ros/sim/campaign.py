@@ -368,7 +368,8 @@ def table(s):
     out = ["| measure | value |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
     if s.get("apparatus_stops"):
         out.append(f"\nstops while the campaign's recorder switched bags (apparatus, not scored): "
-                   f"{len(s['apparatus_stops'])}: " + "; ".join(f"{a[2][:120]} in {a[3]}" for a in s["apparatus_stops"]))
+                   f"{len(s['apparatus_stops'])}: "
+                   + "; ".join(f"{a[2][:120]} in {a[3]}" for a in s["apparatus_stops"]))
     for m in s["misses"]:
         out.append(f"\nmissed: {m['event']} (fault stamp {m['fault_ns']}; {m['note']}) in {m['bag']}")
     for m in s["not_at_rest"]:
