@@ -21,8 +21,9 @@ What each event is expected to do (``Event.expect``):
   SIGCONT) for less than :data:`FREEZE_TOLERATED_S`; the simulator waits for its command
   (lockstep) and every topic is queued. Any stop then, or in the fault-free stretch before
   an event, is a false stop.
-* ``either``: a freeze of :data:`FREEZE_TOLERATED_S` or longer (up to 0.5 s): within one
-  tick of the monitor's 0.5 s missing-data limit, so a stop is allowed; counted apart.
+* ``either``: a freeze of :data:`FREEZE_TOLERATED_S` or longer (up to 0.5 s): the simulator
+  holds a stale command and the catch-up may exceed the monitor's 0.5 s missing-data limit,
+  so a stop is allowed; counted apart.
 
 The stop latency is measured from the fault's stamp (the simulator's first affected
 measurement, ``/sim/fault_onset``; for a process fault or a stamp jump the simulation's
@@ -50,8 +51,11 @@ FROZEN_MOTION = 0.05
 #: ... awaited this long (simulated s); a joint whose reference does not move is reported
 #: as ``unobservable``, neither stopped nor missed
 FROZEN_WAIT_S = 10.0
-#: freezes shorter than this must not stop (the monitor's missing-data limit is 0.5 s)
-FREEZE_TOLERATED_S = 0.4
+#: freezes shorter than this must not stop: the simulator's lockstep timeout (0.3 s). A longer
+#: freeze makes it hold a stale command, and the process' catch-up after SIGCONT can then
+#: exceed the monitor's 0.5 s missing-data limit (a 376 ms freeze of the observer did so once
+#: in `make test`: /plant_input silent 503 ms); 0.3-0.5 s: a stop is allowed
+FREEZE_TOLERATED_S = 0.3
 #: processes the campaign kills (SIGKILL) and restarts
 KILLABLE = ("observer_node", "controller_node", "sim_node")
 #: processes the campaign freezes (SIGSTOP for 50-500 ms, then SIGCONT)
