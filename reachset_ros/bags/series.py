@@ -578,18 +578,27 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
     for ser, _ in parts[1:]:
         if list(ser) != names:
             raise ReachsetError(f"bags have different joints: {names} vs {list(ser)}; pass --joints")
-    out = concat_series([ser for ser, _ in parts], dt)
+    return concat_series([ser for ser, _ in parts], dt), merge_reports([r for _, r in parts])
+
+
+def merge_reports(reports):
+    """One :class:`ReadReport` of several bags' (in bag order; ``period_s`` a list each):
+    counts summed per topic and joint, periods listed, ignored joints united. The report of
+    :func:`read_joint_series` over several bags, and of the fleet's per-bag tasks
+    (:mod:`reachset_ros.fleet`)."""
+    if len(reports) == 1:
+        return reports[0]
     rep = ReadReport()
-    rep.input = parts[0][1].input
-    rep.period_s = [v for _, r in parts for v in r.period_s]
-    for _, r in parts:
+    rep.input = reports[0].input
+    rep.period_s = [v for r in reports for v in r.period_s]
+    for r in reports:
         for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps",
                     "name_list_changes"):
             acc = getattr(rep, key)
             for k, v in getattr(r, key).items():
                 acc[k] = acc.get(k, 0) + v
         rep.ignored_joints = sorted(set(rep.ignored_joints) | set(r.ignored_joints))
-    return out, rep
+    return rep
 
 
 def concat_series(parts, dt):

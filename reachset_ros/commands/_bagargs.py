@@ -89,3 +89,53 @@ def check_out_path(out):
     if not p.parent.exists():
         raise ReachsetError(f"{p.parent}: output directory does not exist")
     return p
+
+
+def add_fleet_arguments(p):
+    """``--workers N`` / ``--scheduler ADDRESS``: the sweep on Dask distributed (:mod:`reachset_ros.fleet`)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, metavar="N",
+                   help="read and sweep the bags in N local worker processes (a Dask LocalCluster, one task per "
+                        "bag); the result is the single-process one to the bit")
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the per-bag tasks on an existing Dask distributed cluster (e.g. tcp://host:8786); "
+                        "its workers must see the bags at the paths given")
+
+
+def fleet_of(args, refused=()):
+    """A :class:`~reachset_ros.fleet.cluster.Fleet` for ``--workers``/``--scheduler`` (not yet
+    started: use it as a context manager), or None without them (Dask is then not imported).
+
+    ``refused``: ``(option set?, "--option")`` pairs that a fleet run cannot compute from
+    per-bag reductions; given with a fleet option, they are a clear error.
+    """
+    workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
+    if workers is None and scheduler is None:
+        return None
+    flag = "--workers" if workers is not None else "--scheduler"
+    for given, option in refused:
+        if given:
+            raise ReachsetError(f"{option} needs the whole series in one process: run it without {flag}")
+    if workers is not None and workers < 1:
+        raise ReachsetError(f"--workers must be >= 1, got {workers}")
+    from ..fleet.cluster import Fleet
+    return Fleet(workers=workers, scheduler=scheduler)
+
+
+def read_spec(args, joints, dt):
+    """The :class:`~reachset_ros.fleet.ReadSpec` of the command line (what ``load_series`` with
+    :func:`reader_options` reads, as plain values for the workers)."""
+    from ..fleet.tasks import ReadSpec
+    names = parse_joints(joints) if isinstance(joints, str) else joints
+    mode = getattr(args, "input", "topic")
+    effort = None
+    if mode == "effort":
+        reader_options(args)            # the same checks (and errors) as a single-process run
+        lock = getattr(args, "lock_joints", None)
+        effort = (args.robot, args.nominal, None if lock is None else tuple(_names(lock, "--lock-joints")))
+    elif getattr(args, "robot", None) is not None or getattr(args, "nominal", None) is not None \
+            or getattr(args, "lock_joints", None):
+        reader_options(args)
+    jn = getattr(args, "joint_names", None)
+    return ReadSpec(None if names is None else tuple(names), float(dt), tuple(topics_of(args)), effort,
+                    None if jn is None else tuple(_names(jn, "--joint-names")))

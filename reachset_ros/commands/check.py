@@ -1,12 +1,16 @@
 """``reachset check``: batch Theorem-1 conformance check of bags against a model.
 
-Exit status: 0 conformant, 1 not conformant (so it can gate a CI job), 2 bad input."""
+Exit status: 0 conformant, 1 not conformant (so it can gate a CI job), 2 bad input.
+
+``--workers N`` / ``--scheduler ADDRESS``: one task per bag on Dask (:mod:`reachset_ros.fleet`),
+merged exactly: the same answer to the bit."""
 from ..conformance import model as mdl
 from ..conformance.theorem1 import check, deviation_extremes
 from ..errors import ReachsetError
 from ..plots import plot_deviations
 from . import emit
-from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
+from ._bagargs import (add_bag_arguments, add_fleet_arguments, fleet_of, load_series, parse_joints, read_spec,
+                       reader_options, require_horizon, topics_of)
 
 NAME = "check"
 HELP = "check bags for reachset conformance against a model (batch, vectorised)"
@@ -14,36 +18,66 @@ HELP = "check bags for reachset conformance against a model (batch, vectorised)"
 
 def add_arguments(p):
     add_bag_arguments(p)
+    add_fleet_arguments(p)
     p.add_argument("--model", required=True, help="model YAML (identify/synthesize output)")
     p.add_argument("--plot", metavar="DIR", help="write per joint a PNG of the measured deviations y_a "
                                                   "(envelope over all test cases) against R_a[k]")
 
 
-def joint_result(stamps, res):
+def joint_result(first_violation_ns, res):
+    """The JSON of one joint's :class:`~reachset_ros.conformance.CheckResult`."""
     return {"violations": res.violations,
-            "first_violation_ns": int(stamps[res.first_violation_tick]) if res.first_violation_tick >= 0 else None,
+            "first_violation_ns": None if first_violation_ns is None else int(first_violation_ns),
             "test_cases": res.test_cases, "checks": res.checks,
             "worst_margin": res.worst_margin if res.checks else None}
 
 
+def _fleet(args, model, thm, fleet):
+    """``--workers``/``--scheduler``: one check task per bag (and, for ``--plot``, one sweep),
+    merged exactly (:mod:`reachset_ros.fleet`). Returns (joints JSON, report, devs or None)."""
+    from .. import fleet as fl
+    names = parse_joints(args.joints)
+    if names is not None:
+        for n in names:
+            if n not in model.joints:
+                raise ReachsetError(f"joint {n} is not in the model {args.model}")
+    read = read_spec(args, names, model.plant.dt)
+    sweep = fl.SweepSpec(model.plant, model.estimator, model.horizon, thm)
+    xis = {n: model.joints[n].xi(model.inflation) for n in (names or model.joints)}
+    devs = None
+    with fleet:
+        checked, report = fl.check(fleet, args.bags, read, sweep, xis)
+        if args.plot:             # a second pass: the envelopes of the deviations
+            devs = {n: d for n, d in fl.extremes(fleet, args.bags, read, sweep).devs.items() if n in xis}
+    return {n: joint_result(first, res) for n, (res, first) in checked.items()}, report, devs
+
+
 def run(args):
     model = mdl.load(args.model)
-    series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                 topics=topics_of(args), options=reader_options(args))
-    require_horizon(series, model.estimator.history, model.horizon, args.bags)
+    fleet = fleet_of(args)
     thm = model.theorem1()
-    joints = {}
-    for name, s in series.items():
-        if name not in model.joints:
-            raise ReachsetError(f"joint {name} is not in the model {args.model}")
-        xi = model.joints[name].xi(model.inflation)
-        res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
-        joints[name] = joint_result(s.stamps, res)
+    if fleet is not None:
+        joints, report, devs = _fleet(args, model, thm, fleet)
+    else:
+        series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
+                                     topics=topics_of(args), options=reader_options(args))
+        require_horizon(series, model.estimator.history, model.horizon, args.bags)
+        joints = {}
+        for name, s in series.items():
+            if name not in model.joints:
+                raise ReachsetError(f"joint {name} is not in the model {args.model}")
+            xi = model.joints[name].xi(model.inflation)
+            res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
+            joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
+                                        res)
+        devs = None
+        if args.plot:
+            devs = {name: deviation_extremes(model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)
+                    for name, s in series.items()}
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
               "data": report.as_dict()}
     if args.plot:
-        result["plots"] = [plot_deviations(args.plot, name, model, thm, deviation_extremes(
-            model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)) for name, s in series.items()]
+        result["plots"] = [plot_deviations(args.plot, name, model, thm, d) for name, d in devs.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
         + (f", first at {j['first_violation_ns']} ns" if j["first_violation_ns"] is not None else "")

@@ -17,6 +17,10 @@ Options beyond the paper's separate approach:
   (the measured position gets accel/2 * t^2 from the onset, the middle of the longest
   validation segment), and the detection delay (ticks from onset to first violation) is
   reported.
+- ``--workers N`` / ``--scheduler ADDRESS``: the sweep runs one task per bag on Dask
+  (:mod:`reachset_ros.fleet`); the model is the single-process one to the bit (provenance
+  aside). ``--validate`` bags are then read in this process; ``--calibrate`` and
+  ``--method corollary1`` need the whole series and are refused with the options.
 
 The horizon k* is refused (exit 2) below the plant's minimum
 (:func:`~reachset_ros.conformance.kernels.minimum_horizon`: the first k* at which Theorem 1
@@ -41,8 +45,8 @@ from ..conformance.validation import detection_delay, validation_grid
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
 from . import emit
-from ._bagargs import (add_bag_arguments, check_out_path, load_series, reader_options, require_horizon,
-                       topics_of)
+from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, load_series, read_spec,
+                       reader_options, require_horizon, topics_of)
 
 NAME = "identify"
 HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
@@ -52,6 +56,7 @@ DEFAULT_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 
 def add_arguments(p):
     add_bag_arguments(p)
+    add_fleet_arguments(p)
     p.add_argument("--horizon", type=int, default=125, help="k*, ticks (default 125, the paper's; at least "
                                                              "the plant's minimum, 2 for the LWA-4P joint)")
     p.add_argument("--allow-weak-horizon", action="store_true",
@@ -91,19 +96,22 @@ def add_arguments(p):
 
 
 def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=None, thm=None,
-                    cost="linear", method="theorem1", settle=True):
+                    cost="linear", method="theorem1", settle=True, devs=None):
     """Identify each joint of ``series``; returns {name: (IdentifiedSets, Deviations, settled_k)}.
 
     ``settled_k`` (Remark 3) is computed with the linear cost; it is None for Corollary 1,
     which needs no horizon, and when ``settle`` is false (the folds of ``--calibrate``).
+    ``devs``: the joints' deviation extremes when already reduced (a fleet run,
+    :mod:`reachset_ros.fleet`; ``series`` is then not read by Theorem 1).
     """
     thm = thm or Theorem1.build(plant, horizon)
     out = {}
-    devs = deviation_extremes_many(plant, est, series, horizon, thm)
-    for name, s in series.items():
-        dev = devs[name]
+    if devs is None:
+        devs = deviation_extremes_many(plant, est, series, horizon, thm)
+    for name, dev in devs.items():
         try:
             if method == "corollary1":
+                s = series[name]
                 sets = identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
                                            alpha_lower=alpha_lower, horizon=horizon, thm=thm)
                 settled = None
@@ -200,19 +208,29 @@ def run(args):
     grid = _grid(args.inflation_grid)
     out = check_out_path(args.out)
     est = Estimator.named(args.estimator, lwa4p_joint_plant(dt=args.dt))
-    opts = reader_options(args)
-    series, report = load_series(args.bags, args.joints, args.dt, topics=topics_of(args), options=opts)
-    require_horizon(series, est.history, args.horizon, args.bags)
-    vseries = vreport = None
-    if args.validate:
-        vseries, vreport = load_series(args.validate, list(series), args.dt, topics=topics_of(args),
-                                       options=opts)
-        require_horizon(vseries, est.history, args.horizon, args.validate)
+    fleet = fleet_of(args, refused=((args.method == "corollary1", "--method corollary1"),
+                                    (args.calibrate is not None, "--calibrate")))
     if args.initial_state_set and args.method == "corollary1":
         raise ReachsetError("--initial-state-set works with --method theorem1 only")
     thm = Theorem1.build(plant, args.horizon, est if args.initial_state_set else None)
+    opts = reader_options(args)
+    devs = series = None
+    if fleet is None:
+        series, report = load_series(args.bags, args.joints, args.dt, topics=topics_of(args), options=opts)
+        require_horizon(series, est.history, args.horizon, args.bags)
+    else:                      # the sweep per bag on Dask, merged exactly (the same devs, to the bit)
+        from .. import fleet as fl
+        with fleet:
+            swept = fl.extremes(fleet, args.bags, read_spec(args, args.joints, args.dt),
+                                fl.SweepSpec(plant, est, args.horizon, thm))
+        devs, report = swept.devs, swept.report
+    vseries = vreport = None
+    if args.validate:
+        vseries, vreport = load_series(args.validate, list(series or devs), args.dt, topics=topics_of(args),
+                                       options=opts)
+        require_horizon(vseries, est.history, args.horizon, args.validate)
     results, thm = identify_series(plant, est, series, args.horizon, args.centers, args.alpha_lower, thm=thm,
-                                   cost=args.cost, method=args.method)
+                                   cost=args.cost, method=args.method, devs=devs)
     joints, js = {}, {}
     for name, (sets, dev, settled) in results.items():
         joints[name] = _joint_sets(sets, dev, args.horizon)
@@ -245,7 +263,8 @@ def run(args):
         result["inflation"] = inflation
         result["validation_data"] = vreport.as_dict()
     if out is not None:
-        prov = mdl.provenance(args.bags, "reachset " + " ".join(sys.argv[1:]))
+        prov = mdl.provenance(args.bags, "reachset " + " ".join(sys.argv[1:]),
+                              None if devs is None else swept.sha256)
         prov["input"] = report.input
         if args.validate:
             prov["validation"] = {"bags": mdl.provenance(args.validate, "")["bags"],

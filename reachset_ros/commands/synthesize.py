@@ -15,6 +15,9 @@ Modes:
 
 ``--lqg-r R...`` adds the LQG baseline of the paper's Table IV (with the result's sets).
 ``--out`` writes a model file (``reachset check`` accepts it) whose joints carry the gains.
+``--workers N`` / ``--scheduler ADDRESS``: the sweep runs one task per bag on Dask
+(:mod:`reachset_ros.fleet`); the result is the single-process one to the bit (provenance and
+timings aside); ``--plot`` needs the series in this process and is refused with them.
 """
 import math
 import sys
@@ -28,7 +31,8 @@ from ..synthesis.config import PARAMS
 from ..synthesis.pipeline import synthesize_bags
 from ..synthesis.reference_error import ReferenceClass, ReferenceMethod
 from . import emit
-from ._bagargs import add_bag_arguments, check_out_path, parse_joints, reader_options, topics_of
+from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
+                       reader_options, topics_of)
 
 NAME = "synthesize"
 HELP = "combined controller synthesis and reachset-conformant identification (paper eq. 10)"
@@ -36,6 +40,7 @@ HELP = "combined controller synthesis and reachset-conformant identification (pa
 
 def add_arguments(p):
     add_bag_arguments(p)
+    add_fleet_arguments(p)
     p.add_argument("--mode", choices=["combined", "separate", "reidentify"], default="combined",
                    help="combined (eq. 10, default), separate (identify then synthesise) or reidentify "
                         "(controller of --model fixed, sets updated)")
@@ -153,6 +158,20 @@ def _bounds(items):
     return bounds
 
 
+def _synthesize(args, joints, free, **kw):
+    """:func:`synthesize_bags` with the command line's options; ``kw``: ``reader``, or ``fleet``
+    and ``fleet_read`` (``--workers``/``--scheduler``)."""
+    return synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
+                           _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
+                           args.alpha_lower, ReferenceMethod(args.reference_method), args.eso_input, args.seed,
+                           tuple(args.lqg_r or ()), args.config, args.model, args.dt,
+                           allow_weak_horizon=args.allow_weak_horizon,
+                           reference_class=(None if args.reference_class is None
+                                            else ReferenceClass.parse(args.reference_class)),
+                           inflation=args.inflation, topics=topics_of(args),
+                           initial_state_set=args.initial_state_set, **kw)
+
+
 def run(args):
     t0 = time.perf_counter()
     if args.dt <= 0 or not math.isfinite(args.dt):
@@ -172,15 +191,12 @@ def run(args):
     out = check_out_path(args.out)
     free = None if args.free is None else [x.strip() for x in args.free.split(",") if x.strip()]
     joints = None if args.joints in (None, "all") else parse_joints(args.joints)
-    bs = synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
-                         _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
-                         args.alpha_lower, ReferenceMethod(args.reference_method), args.eso_input, args.seed,
-                         tuple(args.lqg_r or ()), args.config, args.model, args.dt,
-                         allow_weak_horizon=args.allow_weak_horizon,
-                         reference_class=(None if args.reference_class is None
-                                          else ReferenceClass.parse(args.reference_class)),
-                         inflation=args.inflation, topics=topics_of(args),
-                         reader=reader_options(args), initial_state_set=args.initial_state_set)
+    fleet = fleet_of(args, refused=((args.plot is not None, "--plot"),))
+    if fleet is None:
+        bs = _synthesize(args, joints, free, reader=reader_options(args))
+    else:                      # the sweep per bag on Dask, merged exactly (the same result, to the bit)
+        with fleet:
+            bs = _synthesize(args, joints, free, fleet=fleet, fleet_read=read_spec(args, None, args.dt))
     # everything computed: now write (nothing half-written on errors above)
     result = bs.as_dict()
     plots = []

@@ -52,10 +52,10 @@ from .estimators import ESTIMATORS, Estimator
 from .identify import (IdentifiedSets, frobenius_weights, identification_constraints, identify_quadratic,
                        identify_sets, make_sound, set_norm_cost, stable_horizon, z_bounds, z_to_xi)
 from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, minimum_horizon, predict_output,
-                      require_horizon, require_minimum_horizon, sweep, test_case_starts)
+                      require_horizon, require_minimum_horizon, require_runs, sweep, test_case_starts)
 from .model import ConformanceModel, JointSets
 from .monitor import FaultEvent, JointMonitor, Monitor, MonitorModel, TickEvent, TickResult
-from .theorem1 import (CheckResult, Deviations, Theorem1, check, combine, deviation_extremes,
+from .theorem1 import (CheckResult, Deviations, Theorem1, check, check_extremes, combine, deviation_extremes,
                        deviation_extremes_many, initial_error_maps, output_normals, xi_of)
 from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tick,
                          inject_acceleration_fault, validation_grid)
@@ -63,12 +63,12 @@ from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tic
 __all__ = [
     # kernels
     "matvec", "matvec_into", "matvec_plan", "predict_output", "advance", "as_2d",
-    "test_case_starts", "require_horizon", "minimum_horizon", "require_minimum_horizon", "sweep",
+    "test_case_starts", "require_horizon", "require_runs", "minimum_horizon", "require_minimum_horizon", "sweep",
     # estimators
     "Estimator", "ESTIMATORS",
     # theorem1
     "output_normals", "initial_error_maps", "Theorem1", "xi_of", "Deviations", "deviation_extremes",
-    "deviation_extremes_many", "combine", "CheckResult", "check",
+    "deviation_extremes_many", "combine", "CheckResult", "check", "check_extremes",
     # identify
     "IdentifiedSets", "z_to_xi", "z_bounds", "identification_constraints", "set_norm_cost", "make_sound",
     "identify_sets", "stable_horizon", "frobenius_weights", "identify_quadratic",

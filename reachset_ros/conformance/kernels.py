@@ -158,12 +158,18 @@ def require_horizon(series, history, horizon, bags):
     A test case starting at tick m needs ``history`` ticks before it and ``horizon`` after
     it, all in one segment (consecutive valid ticks).
     """
+    require_runs({name: max((b - a for a, b in s.segments), default=0) for name, s in series.items()},
+                 history, horizon, bags)
+
+
+def require_runs(longest, history, horizon, bags):
+    """:func:`require_horizon` from each joint's longest run of consecutive valid ticks
+    (``{name: ticks}``, e.g. the largest over a fleet's bags)."""
     need = history + horizon + 1
-    for name, s in series.items():
-        longest = max((b - a for a, b in s.segments), default=0)
-        if longest < need:
+    for name, n in longest.items():
+        if n < need:
             raise ReachsetError(f"{', '.join(map(str, bags))}: joint {name}: too few samples for horizon {horizon}: "
-                                f"the longest run of consecutive valid ticks has {longest}, a test case needs {need}")
+                                f"the longest run of consecutive valid ticks has {n}, a test case needs {need}")
 
 
 def minimum_horizon(plant):

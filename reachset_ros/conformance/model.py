@@ -245,7 +245,11 @@ def save(model: ConformanceModel, path):
     write_yaml(p, d)
 
 
-def provenance(bags, command):
+def provenance(bags, command, sha256=None):
+    """The model file's provenance: when, by which command, from which bags (path and
+    :func:`file_sha256`; ``sha256``: the hashes when already computed, e.g. by a fleet's
+    workers, in bag order)."""
+    hashes = [file_sha256(b) for b in bags] if sha256 is None else list(sha256)
     return {"created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "command": command,
-            "bags": [{"path": str(b), "sha256": file_sha256(b)} for b in bags]}
+            "bags": [{"path": str(b), "sha256": h} for b, h in zip(bags, hashes)]}

@@ -186,8 +186,14 @@ class Deviations:
     checks: int
 
 
-def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None):
-    """Reduce all test cases to the left-hand sides of Theorem 1, per k and normal."""
+def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None, allow_empty=False):
+    """Reduce all test cases to the left-hand sides of Theorem 1, per k and normal.
+
+    Extremes merge exactly (:func:`combine`): the extremes of several recordings are the
+    extremes of their concatenation, to the bit. ``allow_empty``: a recording without any
+    test case gives ``-inf`` extremes and ``test_cases == 0`` (one bag of a fleet's,
+    :mod:`reachset_ros.fleet`) instead of raising.
+    """
     thm = thm or Theorem1.build(plant, horizon)
     maxp = [None] * (horizon + 1)
     maxm = [None] * (horizon + 1)
@@ -201,7 +207,7 @@ def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None):
         count[0] += ya.shape[1]
 
     M = sweep(plant, estimator, y, u, segments, horizon, visit)
-    if M == 0:
+    if M == 0 and not allow_empty:
         raise ReachsetError("too few samples for a test case (need at least "
                             f"{estimator.history + 1} consecutive valid ticks)")
     for k in range(horizon + 1):
@@ -243,7 +249,11 @@ def deviation_extremes_many(plant, estimator, series, horizon, thm=None, workers
 
 
 def combine(devs):
-    """Deviations of several recordings (joints' data from several bags) together."""
+    """Deviations of several recordings (joints' data from several bags) together.
+
+    Exact: the elementwise maximum of the recordings' extremes, the test cases and checks
+    summed; order does not matter (max and integer sums are associative in floating point).
+    """
     maxp = tuple(np.maximum.reduce([d.maxp[k] for d in devs]) for k in range(len(devs[0].maxp)))
     maxm = tuple(np.maximum.reduce([d.maxm[k] for d in devs]) for k in range(len(devs[0].maxm)))
     return Deviations(maxp, maxm, sum(d.test_cases for d in devs), sum(d.checks for d in devs))
@@ -259,6 +269,24 @@ class CheckResult:
     test_cases: int
     checks: int
     worst_margin: float           # min over all checks of (offset - N y_a); < 0 = violated
+
+
+def check_extremes(thm, xi, devs):
+    """The verdict of :func:`check` from the deviation extremes alone, where it is exact.
+
+    ``max_m N_k y_a^(m)[k] <= d+_k`` (and the same for ``-N_k``) for all k holds exactly when
+    no test case leaves R_a[k], and ``min_k (d_k - max_m N_k y_a)`` is, to the bit, the
+    smallest margin :func:`check` finds (``fl(d - x)`` is monotone in x). Only the number
+    of violating ticks and the first one need the data.
+
+    Returns
+    -------
+    (conformant : bool, worst_margin : float)
+    """
+    worst = np.inf
+    for (dp, dm), hp, hm in zip(thm.offsets(xi), devs.maxp, devs.maxm):
+        worst = min(worst, float((dp - hp).min()), float((dm - hm).min()))
+    return bool(worst >= 0.0), worst
 
 
 def check(plant, thm, estimator, xi, y, u, segments, horizon):

@@ -130,6 +130,7 @@ class BagSynthesis:
     reference_class: object = None      # ReferenceClass used instead of/over the recorded references
     inflation: float = 0.0              # the model's inflation: R*_e, R*_u are for the inflated sets
     initial_state_set: bool = False     # Theorem 1 with the estimator's initial-state set (Theorem1.build)
+    sha256: tuple = None                # the bags' hashes when a fleet's workers computed them
 
     def as_dict(self):
         d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
@@ -151,7 +152,8 @@ class BagSynthesis:
                                       tuple(r.c_v.tolist()), r.test_cases, self.horizon, r.gains(),
                                       {"reference_error": r.reference, "conformant": r.conformant})
         return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints,
-                                    float(self.inflation), mdl.provenance(self.bags, command), self.minimum_horizon,
+                                    float(self.inflation), mdl.provenance(self.bags, command, self.sha256),
+                                    self.minimum_horizon,
                                     self.horizon_below_minimum, bool(self.initial_state_set))
 
 
@@ -160,7 +162,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
                     reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
                     config=None, model=None,
                     dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None,
-                    reader=None, initial_state_set=None):
+                    reader=None, initial_state_set=None, fleet=None, fleet_read=None):
     """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
 
     Parameters
@@ -195,6 +197,10 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         Theorem 1 with the estimator's initial-state set
         (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`); recorded in the model.
         Default false (reidentify: the model's).
+    fleet : reachset_ros.fleet.cluster.Fleet, optional
+        An open fleet: the bags are swept one task per bag on it (:mod:`reachset_ros.fleet`),
+        read as ``fleet_read`` (a :class:`~reachset_ros.fleet.ReadSpec`; its joints and dt are
+        set here) says; the result is the single-process one to the bit.
 
     Returns
     -------
@@ -236,10 +242,24 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     if not (math.isfinite(inflation) and inflation >= 0):
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
-    series, report = read_joint_series(list(bags), names, plant.dt, tuple(topics) if topics else
-                                       (JOINT_STATES, PLANT_INPUT), **(reader or {}))
-    names = list(series)
-    cf.require_horizon(series, est.history, horizon, bags)
+    initial_state_set = bool(initial_state_set)
+    thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
+    devs = checker = sha256 = series = None
+    if fleet is None:
+        series, report = read_joint_series(list(bags), names, plant.dt, tuple(topics) if topics else
+                                           (JOINT_STATES, PLANT_INPUT), **(reader or {}))
+        names = list(series)
+        cf.require_horizon(series, est.history, horizon, bags)
+    else:
+        from dataclasses import replace
+
+        from .. import fleet as fl
+        read = replace(fleet_read, joints=None if names is None else tuple(names), dt=plant.dt)
+        sweep = fl.SweepSpec(plant, est, horizon, thm)
+        swept = fl.extremes(fleet, bags, read, sweep, references=True)
+        devs, report, sha256 = swept.devs, swept.report, swept.sha256
+        names = list(devs)
+        checker = fl.Checker(fleet, bags, read, sweep)
     if mode == "reidentify":
         missing = [n for n in names if not gains.get(n)]
         if missing:
@@ -266,15 +286,15 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     seed = int(search.get("seed", 0) if seed is None else seed)
     if seed < 0:
         raise ReachsetError(f"seed must be >= 0, got {seed}")
-    refs = read_references(list(bags), names, plant.dt)
+    refs = read_references(list(bags), names, plant.dt) if fleet is None else swept.references
     classes = _reference_classes(names, refs, reference_class, model_classes, bags)
-    initial_state_set = bool(initial_state_set)
-    thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
     problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
-                                    thm=thm, reference_class=classes, inflation=inflation)
+                                    thm=thm, reference_class=classes, inflation=inflation, devs=devs,
+                                    checker=checker)
     results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
     return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
-                        int(reference_method), bags, k_min, weak, reference_class, inflation, initial_state_set)
+                        int(reference_method), bags, k_min, weak, reference_class, inflation, initial_state_set,
+                        sha256)
 
 
 def _reference_classes(names, refs, reference_class, model_classes, bags):

@@ -142,6 +142,9 @@ class JointProblem:
     ref_windows: tuple = ()
     reference_class: ReferenceClass = None
     inflation: float = 0.0      # the monitor checks W, V scaled by 1 + inflation: R_e, R_u are for those
+    #: a fleet run (:mod:`reachset_ros.fleet`) holds no series here (``y``, ``u`` None) but the
+    #: reduced ``devs``; ``checker(name, xi)`` then counts a non-conformant xi's violating ticks
+    checker: object = None
 
     @property
     def set_scale(self):
@@ -151,8 +154,11 @@ class JointProblem:
     @classmethod
     def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0,
                 thm=None, references=(), reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None,
-                stamps=None, reference_class=None, inflation=0.0):
+                stamps=None, reference_class=None, inflation=0.0, devs=None, checker=None):
         """Deviation extremes (one sweep over all test cases) and the reduced Theorem-1 rows.
+
+        ``devs``: the extremes when already reduced (a fleet run: ``y``, ``u``, ``segments``
+        are then None and ``checker`` checks the data, see :meth:`check`).
 
         ``references`` (recorded) or ``reference_class`` is required (Appendix B). With a
         class, its sound bound (:func:`class_reference_error`) is used and the recorded
@@ -194,19 +200,39 @@ class JointProblem:
                                 "(Appendix B) cannot be bounded; record the references or give a reference class")
         thm = thm or cf.Theorem1.build(plant, horizon)
         try:
-            devs = cf.deviation_extremes(plant, estimator, y, u, segments, horizon, thm)
+            if devs is None:
+                devs = cf.deviation_extremes(plant, estimator, y, u, segments, horizon, thm)
             poly = AlphaPolytope.build(plant, thm, devs, horizon, alpha_lower)
         except ReachsetError as e:
             raise type(e)(f"joint {name}: {e}") from None
         windows = (reference_windows(refs) if (refs and reference_class is None
                                                and reference_method == ReferenceMethod.REFERENCE_SET) else ())
         return cls(name, plant, estimator, thm, devs, horizon, poly, float(u_max), float(u_ff),
-                   cf.as_2d(y), cf.as_2d(u), tuple(segments), refs, reference_method,
-                   poly.lower, stamps, windows, reference_class, float(inflation))
+                   None if y is None else cf.as_2d(y), None if u is None else cf.as_2d(u),
+                   None if segments is None else tuple(segments), refs, reference_method,
+                   poly.lower, stamps, windows, reference_class, float(inflation), checker)
 
     @property
     def test_cases(self):
         return self.devs.test_cases
+
+    def check(self, xi):
+        """:func:`reachset_ros.conformance.check` of the joint's data against ``xi``.
+
+        Without the series (a fleet run) the verdict and worst margin come from the extremes,
+        where they are exact (:func:`reachset_ros.conformance.check_extremes`); only a
+        non-conformant ``xi`` needs the data again (``checker``) to count its violating ticks.
+        The result is the same :class:`~reachset_ros.conformance.CheckResult` to the bit.
+        """
+        if self.y is not None:
+            return cf.check(self.plant, self.thm, self.estimator, xi, self.y, self.u, self.segments, self.horizon)
+        ok, margin = cf.check_extremes(self.thm, xi, self.devs)
+        if ok:
+            return cf.CheckResult(0, -1, self.devs.test_cases, self.devs.checks, margin)
+        if self.checker is None:
+            raise ReachsetError(f"joint {self.name}: the sets are not conformant and no data is at hand to count "
+                                "the violating ticks")
+        return self.checker(self.name, xi)
 
     def reference_sets(self, observer, controller, references=None):
         """``Y_e,ref`` and ``U_e,ff`` (Appendix B) of this joint's loop with ``observer``, ``controller``.
@@ -226,16 +252,21 @@ class JointProblem:
 
 def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, references=None,
                          reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None, thm=None,
-                         reference_class=None, inflation=0.0):
+                         reference_class=None, inflation=0.0, devs=None, checker=None):
     """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict;
     ``reference_class``: a :class:`ReferenceClass` for all joints, a dict per joint, or None;
-    ``inflation``: the monitored sets' inflation the guarantee is computed for (all joints)."""
+    ``inflation``: the monitored sets' inflation the guarantee is computed for (all joints).
+    ``devs``: ``{name: Deviations}`` instead of ``series`` (None then), with ``checker`` (a
+    fleet run, :meth:`JointProblem.check`)."""
     thm = thm or cf.Theorem1.build(plant, horizon)
     out = []
-    for name, s in series.items():
+    for name in (series if devs is None else devs):
+        s = None if devs is not None else series[name]
         um = u_max[name] if isinstance(u_max, dict) else u_max
         refs = (references or {}).get(name, ())
         rc = reference_class.get(name) if isinstance(reference_class, dict) else reference_class
-        out.append(JointProblem.prepare(name, plant, estimator, s.y, s.u, s.segments, horizon, um, u_ff,
-                                        thm, refs, reference_method, alpha_lower, s.stamps, rc, inflation))
+        out.append(JointProblem.prepare(name, plant, estimator, *((s.y, s.u, s.segments) if s else (None,) * 3),
+                                        horizon, um, u_ff, thm, refs, reference_method, alpha_lower,
+                                        s.stamps if s else None, rc, inflation,
+                                        devs=None if devs is None else devs[name], checker=checker))
     return out

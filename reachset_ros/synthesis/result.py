@@ -151,7 +151,7 @@ def finalize(problem, space, values, alpha, mode, evaluations=0, t0=None, notes=
     res_check = None
     if check:
         xi = cf.xi_of(c_w, c_v, aw, av)
-        res_check = cf.check(pb.plant, pb.thm, pb.estimator, xi, pb.y, pb.u, pb.segments, pb.horizon)
+        res_check = pb.check(xi)
     return JointResult(
         name=pb.name, mode=mode, observer=space.observer, controller=space.controller, params=dict(values),
         free=space.free, alpha_w=aw, alpha_v=av, c_w=c_w, c_v=c_v,

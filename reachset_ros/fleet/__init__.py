@@ -1,0 +1,62 @@
+"""Fleet scale: the bag-reading commands on Dask distributed (issue 18).
+
+``reachset identify|check|synthesize BAG... --workers N`` (a local cluster of N processes)
+or ``--scheduler ADDRESS`` (an existing Dask cluster) split the Theorem-1 sweep by bag: each
+task reads one bag and returns per joint its deviation extremes (or its batch check), the
+client merges them exactly and solves the linear programmes itself. The model is the
+single-process model to the bit (provenance aside) for any split of the bags.
+
+* :mod:`.tasks`: the per-bag tasks and their exact merges (no Dask import);
+* :mod:`.cluster`: :class:`~.cluster.Fleet`, the Dask client (imported only with the options).
+
+:func:`extremes` and :func:`check` are the two client-side entry points the commands use.
+"""
+from .tasks import (BagCheck, BagExtremes, BagHeader, FleetSweep, ReadSpec, SweepSpec, bag_check, bag_extremes, bag_header,
+                    merge_checks, merge_extremes, require_agreement)
+
+
+def _headers(fleet, bags, read):
+    """Every bag's first messages, compared before any sweep is sent (:func:`.tasks.require_agreement`)."""
+    headers = fleet.map(bag_header, list(map(str, bags)), read, what="header")
+    require_agreement(headers, read)
+    return headers
+
+
+def extremes(fleet, bags, read: ReadSpec, sweep: SweepSpec, references=False):
+    """The deviation extremes of all bags, one task per bag, merged exactly.
+
+    Returns
+    -------
+    FleetSweep
+        ``devs`` {name: Deviations}, ``report``, ``references`` ({name: [Reference, ...]} in
+        bag order when ``references`` is true: ``synthesize``) and the bags' ``sha256``.
+    """
+    _headers(fleet, bags, read)
+    parts = fleet.map(bag_extremes, list(map(str, bags)), read, sweep, what="sweep", references=references)
+    return merge_extremes(parts, sweep.estimator.history, sweep.horizon, bags)
+
+
+def check(fleet, bags, read: ReadSpec, sweep: SweepSpec, xis):
+    """The batch check of all bags against ``xis`` ({name: xi}), one task per bag.
+
+    Returns ``({name: (CheckResult, first violation stamp or None)}, report)``.
+    """
+    _headers(fleet, bags, read)
+    parts = fleet.map(bag_check, list(map(str, bags)), read, sweep, xis, what="check")
+    return merge_checks(parts, sweep.estimator.history, sweep.horizon, bags)
+
+
+class Checker:
+    """``checker(name, xi)``: the batch check of one joint of a fleet's bags, one task per bag
+    (what :meth:`reachset_ros.synthesis.problem.JointProblem.check` calls for a
+    non-conformant xi of a fleet run). The fleet must stay open while it is used."""
+
+    def __init__(self, fleet, bags, read: ReadSpec, sweep: SweepSpec):
+        self.fleet, self.bags, self.read, self.sweep = fleet, list(bags), read, sweep
+
+    def __call__(self, name, xi):
+        return check(self.fleet, self.bags, self.read, self.sweep, {name: xi})[0][name][0]
+
+
+__all__ = ["Checker", "FleetSweep", "ReadSpec", "SweepSpec", "BagHeader", "BagExtremes", "BagCheck", "bag_header", "bag_extremes",
+           "bag_check", "merge_extremes", "merge_checks", "require_agreement", "extremes", "check"]
