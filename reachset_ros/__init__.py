@@ -7,7 +7,8 @@ The pure core (no rclpy import) holds all mathematics, one concept per subpackag
 :mod:`~reachset_ros.synthesis` (the combined synthesis of Sec. III-D and Appendix B),
 :mod:`~reachset_ros.robot` (rigid-body dynamics of the LWA-4P, input limits),
 :mod:`~reachset_ros.bags` (rosbag2 reading and writing), :mod:`~reachset_ros.sim` (the
-simulated arm and its references). ROS 2 nodes in :mod:`reachset_ros.nodes` are thin
+simulated arm and its references), :mod:`~reachset_ros.fleet` (the per-bag tasks of a fleet
+run on Dask distributed, and their exact merges). ROS 2 nodes in :mod:`reachset_ros.nodes` are thin
 adapters over it; :mod:`reachset_ros.cli` and :mod:`reachset_ros.commands` are the
 ``reachset`` command line, :mod:`reachset_ros.plots` its figures. Processes and their
 environment: :mod:`reachset_ros.launch` (node processes: start, stop, signals),
