@@ -16,6 +16,7 @@ NODES = {
     "monitor_lifecycle_node": "reachset_ros.nodes.monitor_lifecycle_node:main",
     "recorder_node": "reachset_ros.nodes.recorder_node:main",
     "synthesis_node": "reachset_ros.nodes.synthesis_node:main",
+    "relay_node": "reachset_ros.nodes.relay_node:main",
 }
 # The online monitor's tick (reachset_ros/conformance/kernels.py loads it with ctypes; numpy is the
 # fallback). No fused multiply-add: its results must equal numpy's bit for bit.

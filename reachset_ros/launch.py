@@ -88,7 +88,7 @@ class NodeProcess:
 
 
 def start(node: str, params: dict | None = None, workdir=".", env=None, node_name=None,
-          group: list | None = None) -> NodeProcess:
+          group: list | None = None, remap: dict | None = None) -> NodeProcess:
     """Start ``reachset_ros.nodes.<node>`` with ``params`` (its ROS parameters).
 
     Parameters
@@ -106,6 +106,8 @@ def start(node: str, params: dict | None = None, workdir=".", env=None, node_nam
     group : list, optional
         The started :class:`NodeProcess` is appended to it before ``start`` returns, so a
         caller that stops ``group`` on an exception cannot miss it.
+    remap : dict, optional
+        Topic remappings ``{from: to}`` (``-r from:=to``), e.g. a reader fed by a relay.
 
     Returns
     -------
@@ -117,6 +119,8 @@ def start(node: str, params: dict | None = None, workdir=".", env=None, node_nam
     cmd = [sys.executable, "-m", f"reachset_ros.nodes.{node}", "--ros-args"]
     if node_name != node:
         cmd += ["-r", f"__node:={node_name}"]
+    for a, b in (remap or {}).items():
+        cmd += ["-r", f"{a}:={b}"]
     if params:
         pfile = workdir / f"{node_name}.params.yaml"
         pfile.write_text(yaml.safe_dump({node_name: {"ros__parameters": params}}))

@@ -107,6 +107,19 @@ def test_effort_route_equals_import_lwa4p_route(lwa_bags):
     assert rep.unpaired[model.joint_names[0]] == len(RUNS) and rep.invalid_samples[model.joint_names[0]] == 0
 
 
+def test_effort_route_on_dask_workers_is_the_same_to_the_bit(lwa_bags, tmp_path):
+    """Issue 18 with ``--input effort``: the workers rebuild the robot model from the URDF and
+    parameters and compute u_p themselves; the sets are the one-process ones to the bit."""
+    d, _, _ = lwa_bags
+    other = tmp_path / "plain_copy"
+    shutil.copytree(d / "plain", other)            # two bags, so that both workers read one
+    argv = ["identify", d / "plain", other, "--horizon", 40, "--input", "effort", "--robot", DEFAULT_URDF,
+            "--nominal", NOMINAL, "--json"]
+    a, b = cli(*argv), cli(*argv, "--workers", 2)
+    assert a["joints"] == b["joints"] and a["data"] == b["data"]
+    assert b["data"]["input"]["source"] == "effort"
+
+
 def test_effort_plant_input_is_eq6_inverted(lwa_bags):
     """u_p = M̂(q)⁻¹ (s τ − ψ̂(q, q̇)): the mass matrix times u_p plus ψ̂ gives back the torque;
     a non-finite input gives a NaN row (never a silently used sample)."""

@@ -26,8 +26,14 @@ def test_schedule_is_seeded_and_covers_every_kind():
     a, b = cp.schedule(3, 64), cp.schedule(3, 64)
     assert a == b and a != cp.schedule(4, 64)
     kinds = {e.kind for e in a}
-    assert kinds == {"sim", "kill", "freeze", "stamp_jump", "quiet"}
+    assert kinds == {"sim", "kill", "freeze", "stamp_jump", "link", "quiet"}
     assert all(e.expect == "stop" for e in a if e.kind in ("sim", "kill", "stamp_jump"))
+    # link faults: a heavy loss must stop (coverage), a sparse loss and a delay must not
+    links = {e.fault: e for e in a if e.kind == "link"}
+    assert set(links) == {"loss", "sparse", "delay"}
+    assert links["loss"].expect == "stop" and links["loss"].magnitude == cp.LOSS_SHARE
+    assert links["sparse"].expect == "none" and links["sparse"].magnitude == cp.SPARSE_EVERY
+    assert links["delay"].expect == "none" and cp.DELAY_S[0] <= links["delay"].magnitude <= cp.DELAY_S[1]
     freezes = [e for e in a if e.kind == "freeze"]
     assert all(0.05 <= e.seconds <= 0.5 for e in freezes)
     assert all((e.expect == "none") == (e.seconds < cp.FREEZE_TOLERATED_S) for e in freezes)
@@ -89,8 +95,8 @@ def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tm
     res = json.loads((tmp_path / "campaign.json").read_text())
     s = res["score"]
     kinds = {o["event"].split()[0] for o in res["outcomes"]}
-    assert {"sim", "kill", "freeze", "stamp"} <= kinds
-    assert s["faults_injected"] >= 8
+    assert {"sim", "kill", "freeze", "stamp", "link"} <= kinds
+    assert s["faults_injected"] >= 7
     assert s["missed_stops"] == 0, s["misses"]
     assert s["false_stops"] == 0, s["false"]
     assert s["stops"] == s["faults_injected"]

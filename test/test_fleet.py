@@ -218,3 +218,29 @@ def test_no_dask_import_without_the_options(fleet_bags, tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "0 []"
+
+
+def test_problem_check_without_the_series_equals_the_batch_check(fleet_bags):
+    """A fleet's synthesis problem holds the extremes, not the series: its check of a
+    conformant xi (from the extremes) and of a violated one (the Checker's pass over the
+    bags on the cluster) equal the batch check of the concatenated series, field by field."""
+    from reachset_ros.synthesis.problem import JointProblem
+    _, paths, _ = fleet_bags
+    p = lwa4p_joint_plant()
+    est = Estimator.named("fd", p)
+    thm = cf.Theorem1.build(p, 60)
+    series, _ = bags.read_joint_series(paths, None, 0.004)
+    refs = bags.read_references(paths, JOINTS, 0.004)
+    s = series[JOINTS[1]]
+    read = fl.ReadSpec(None, 0.004, (bags.JOINT_STATES, bags.PLANT_INPUT))
+    sweep = fl.SweepSpec(p, est, 60, thm)
+    devs = cf.deviation_extremes(p, est, s.y, s.u, s.segments, 60, thm)
+    sets = cf.identify_sets(p, thm, devs)
+    with Fleet(workers=1, progress=None) as fleet:
+        pb = JointProblem.prepare(JOINTS[1], p, est, None, None, None, 60, thm=thm, references=refs[JOINTS[1]],
+                                  devs=devs, checker=fl.Checker(fleet, paths, read, sweep))
+        for scale in (1.0, 0.5):
+            xi = cf.xi_of(sets.c_w, sets.c_v, sets.alpha_w * scale, sets.alpha_v * scale)
+            want = cf.check(p, thm, est, xi, s.y, s.u, s.segments, 60)
+            got = pb.check(xi)
+            assert got == want and (got.violations > 0) == (scale < 1)

@@ -26,7 +26,7 @@ DOC = REPO / "docs" / "nodes.md"
 #: node (module in reachset_ros.nodes) -> its Node class, in the order of docs/nodes.md
 NODES = {"sim_node": "SimNode", "reference_node": "ReferenceNode", "observer_node": "ObserverNode",
          "controller_node": "ControllerNode", "monitor_node": "MonitorNode",
-         "synthesis_node": "SynthesisNode", "recorder_node": "RecorderNode"}
+         "synthesis_node": "SynthesisNode", "recorder_node": "RecorderNode", "relay_node": "RelayNode"}
 
 TYPES = {1: "bool", 2: "integer", 3: "double", 4: "string", 5: "byte[]", 6: "bool[]",
          7: "integer[]", 8: "double[]", 9: "string[]"}

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+import uuid
 
 from ..errors import ReachsetError
 
@@ -93,7 +94,8 @@ class Fleet:
         client = self.client
         shared = client.scatter(list(args) + [kw], broadcast=True, hash=False) if (args or kw) else None
         arg_futs, kw_fut = (shared[:-1], shared[-1]) if shared else ([], None)
-        futures = [client.submit(_call, fn, b, kw_fut, *arg_futs, key=f"reachset-{what}-{i}-{_token(b)}", pure=False)
+        run = uuid.uuid4().hex[:12]          # task keys unique per call: never a cached result of another call
+        futures = [client.submit(_call, fn, b, kw_fut, *arg_futs, key=f"reachset-{what}-{run}-{i}", pure=False)
                    for i, b in enumerate(bags)]
         index = {f.key: i for i, f in enumerate(futures)}
         results, errors = [None] * len(bags), {}
@@ -118,10 +120,6 @@ class Fleet:
         if errors:
             raise errors[min(errors)]
         return results
-
-
-def _token(bag):
-    return str(abs(hash(str(bag))))[:8]
 
 
 def _call(fn, bag, kw, *args):

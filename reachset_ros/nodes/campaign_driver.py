@@ -9,7 +9,8 @@ BAG1 BAG2 BAG3 --calibrate 3``), resets the monitor and then runs the events: fo
 monitored running, the fault, the wait for the stop, the braking it causes, and the recovery
 (faults cleared, a killed process restarted, the monitor reset, the arm tracking again for
 ``RECOVER_S`` without a stop; a stop during the recovery is counted apart and the reset
-repeated). Every block of 8 events is recorded to its own bag (the campaign's topics),
+repeated). The monitor reads ``/joint_states`` through a relay (:mod:`.relay_node`, remapped),
+which the link events make drop or delay samples. Every block of 8 events is recorded to its own bag (the campaign's topics),
 named in the outcome of each of its events, so a miss or a false stop comes with its data.
 CPU burners (one busy process per core, normal priority) run during the blocks the
 schedule says.
@@ -45,6 +46,8 @@ JUDGE_S = 1.0
 WATCH_S = 2.0
 #: a refused reset is tried again for this long (simulated s) before the campaign gives up
 RESET_PATIENCE_S = 20.0
+#: the monitor's /joint_states, as the relay lets them through (link events)
+RELAYED = "/campaign/relayed/joint_states"
 #: resets tried before the campaign gives up on recovering
 MAX_RESETS = 6
 BURNER = "while True:\n    pass\n"
@@ -147,13 +150,23 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
         "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": True,
                             "robot_params": str(default_nominal_path())},
         "monitor_node": {"window_dir": str(workdir / "windows")},
+        # the monitor's /joint_states pass through the relay: the link events drop or delay them
+        "relay_node": {"input_topic": "/joint_states", "output_topic": RELAYED, "seed": seed},
     }
+    remaps = {"monitor_node": {"joint_states": RELAYED}}
     info = {"workdir": str(workdir), "seed": seed}
     outcomes = []
     rec = None
 
     def start(name):
-        procs[name] = launch.start(name, params[name], workdir, group=group)
+        procs[name] = launch.start(name, params[name], workdir, group=group, remap=remaps.get(name))
+
+    def set_link(drop_share=0.0, drop_every=0, delay_s=0.0):
+        ok, why = set_remote_parameters(driver, "relay_node", {"drop_share": float(drop_share),
+                                                                "drop_every": int(drop_every),
+                                                                "delay_s": float(delay_s)})
+        if not ok:
+            raise RuntimeError(f"the relay refused the link fault: {why}")
 
     def sim_wait(seconds, until=None):
         return driver.spin_sim(seconds, until=until)[0]
@@ -175,6 +188,8 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             sim_wait(0.25)
 
     def recover(ev, o):
+        if ev.kind == "link":
+            set_link()
         if ev.kind == "sim":
             ok, why = set_remote_parameters(driver, "sim_node", {"fault": "none"})
             if not ok:
@@ -259,11 +274,18 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             bad.name, bad.position, bad.velocity, bad.effort = list(js.name), list(js.position), \
                 list(js.velocity), list(js.effort)
             jump_pub.publish(bad)
+        elif ev.kind == "link":
+            o.fault_ns = driver.sim_now()
+            set_link(**{"loss": {"drop_share": ev.magnitude}, "sparse": {"drop_every": int(ev.magnitude)},
+                        "delay": {"delay_s": ev.magnitude}}[ev.fault])
+            if ev.expect == "none":        # the tolerated link faults last ev.seconds, then the watch below
+                sim_wait(ev.seconds, until=lambda: len(lis.stops) > n)
+                set_link()
         if ev.expect == "stop" and ev.fault == "frozen" and not o.observable_ns:
             o.note = f"unobservable: the joint's reference did not move within {cp.FROZEN_WAIT_S:g} s"
             log(f"[campaign]   {o.note}")
         elif ev.expect == "stop":
-            end = (o.observable_ns or o.fault_ns) + int(cp.DETECT_WITHIN_S * 1e9)
+            end = (o.observable_ns or o.fault_ns) + int(cp.detect_within_s(ev) * 1e9)
             wall_end = wall0 + cp.DETECT_WITHIN_WALL_S
             while len(lis.stops) == n and driver.sim_now() < end and time.monotonic() < wall_end:
                 driver.spin_once(0.01)
@@ -286,14 +308,15 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 f"{o.braking_ticks} ticks after its arrival")
         elif ev.expect == "stop" and not o.note:
             o.note = "no stop within the detection window"
-            log(f"[campaign]   MISSED: no stop within {cp.DETECT_WITHIN_S} s")
-        if o.stops or ev.kind in ("sim", "kill"):
+            log(f"[campaign]   MISSED: no stop within {cp.detect_within_s(ev)} s")
+        if o.stops or ev.kind in ("sim", "kill", "link"):
             recover(ev, o)
         o.stale_steps = lis.stale_total - stale0   # as reported so far (/diagnostics at 1 Hz)
         return o
 
     try:
-        for name in ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node"):
+        for name in ("sim_node", "reference_node", "observer_node", "controller_node", "relay_node",
+                     "monitor_node"):
             start(name)
         if not driver.spin_for(120.0, until=lambda: bool(driver.stops)):
             raise RuntimeError("no /safe_stop state from the monitor within 120 s")

@@ -21,6 +21,11 @@ What each event is expected to do (``Event.expect``):
   SIGCONT) for less than :data:`FREEZE_TOLERATED_S`; the simulator waits for its command
   (lockstep) and every topic is queued. Any stop then, or in the fault-free stretch before
   an event, is a false stop.
+* ``link`` events (the relay between ``/joint_states`` and the monitor,
+  :mod:`reachset_ros.nodes.relay_node`): ``loss`` (half the samples dropped at random until the
+  stop) must stop -- the monitor can no longer form test cases of k* steps (its ``coverage``
+  fault); ``sparse`` (one sample in :data:`SPARSE_EVERY` dropped, for :data:`LINK_S`) and
+  ``delay`` (10-80 ms added to every sample, order kept, for :data:`LINK_S`) must not.
 * ``either``: a freeze of :data:`FREEZE_TOLERATED_S` or longer (up to 0.5 s): the simulator
   holds a stale command and the catch-up may exceed the monitor's 0.5 s missing-data limit,
   so a stop is allowed; counted apart.
@@ -38,11 +43,15 @@ import numpy as np
 
 from ..robot.dynamics import JOINT_NAMES, TABLE1_TAU_MAX
 
-__all__ = ["Event", "Outcome", "SIM_FAULTS", "schedule", "score", "table", "DETECT_WITHIN_S",
+__all__ = ["Event", "Outcome", "SIM_FAULTS", "schedule", "score", "table", "DETECT_WITHIN_S", "LOSS_SHARE", "LOSS_DETECT_S", "detect_within_s",
+           "SPARSE_EVERY", "DELAY_S", "LINK_S",
            "DETECT_WITHIN_WALL_S", "FREEZE_TOLERATED_S", "KILLABLE", "FREEZABLE", "judge_rest"]
 
 #: a fault that must stop is missed when no stop arrives within this much simulated time
 DETECT_WITHIN_S = 1.0
+#: ... for a link ``loss``: the monitor's coverage rule allows its warm-up plus its
+#: missing-data limit (3 + 125 + 125 ticks = 1.012 s in the campaign) before the stop
+LOSS_DETECT_S = 2.0
 #: ... or this much wall time (a killed or frozen simulator stops the simulation's clock)
 DETECT_WITHIN_WALL_S = 5.0
 #: a frozen sensor is observable only once its joint moves: the detection window starts at the
@@ -56,6 +65,14 @@ FROZEN_WAIT_S = 10.0
 #: exceed the monitor's 0.5 s missing-data limit (a 376 ms freeze of the observer did so once
 #: in `make test`: /plant_input silent 503 ms); 0.3-0.5 s: a stop is allowed
 FREEZE_TOLERATED_S = 0.3
+#: link events: the share of samples a ``loss`` drops, the one-in-n of a ``sparse`` loss (more
+#: than the monitor's warm-up of 128 ticks plus its 25-tick missing-data limit apart, so test
+#: cases reach k* between two losses), the range of a ``delay`` (s) and how long the tolerated
+#: link faults last (simulated s)
+LOSS_SHARE = 0.5
+SPARSE_EVERY = 200
+DELAY_S = (0.01, 0.08)
+LINK_S = 3.0
 #: processes the campaign kills (SIGKILL) and restarts
 KILLABLE = ("observer_node", "controller_node", "sim_node")
 #: processes the campaign freezes (SIGSTOP for 50-500 ms, then SIGCONT)
@@ -81,8 +98,9 @@ class Event:
     """One scheduled event: ``quiet_s`` s of fault-free running, then the fault.
 
     ``kind``: ``sim`` (``fault``, ``joint``, ``magnitude``), ``kill`` (``target``),
-    ``freeze`` (``target``, ``seconds``), ``stamp_jump`` (``seconds`` back) or ``quiet``
-    (nothing: a longer fault-free stretch). ``burners``: CPU burners on both cores run
+    ``freeze`` (``target``, ``seconds``), ``stamp_jump`` (``seconds`` back), ``link``
+    (``fault``: loss, sparse or delay; ``magnitude``: the drop share, one-in-n or delay in s;
+    ``seconds``: how long) or ``quiet`` (nothing: a longer fault-free stretch). ``burners``: CPU burners on both cores run
     during the event and the stretch before it."""
 
     index: int
@@ -105,6 +123,10 @@ class Event:
             return f"freeze {self.target} {self.seconds * 1e3:.0f} ms"
         if self.kind == "stamp_jump":
             return f"stamp jump back {self.seconds * 1e3:.0f} ms"
+        if self.kind == "link":
+            what = {"loss": f"{self.magnitude:.0%} dropped", "sparse": f"1 in {self.magnitude:.0f} dropped",
+                    "delay": f"{self.magnitude * 1e3:.0f} ms delay"}.get(self.fault, self.fault)
+            return f"link {self.target}: {what}"
         return f"quiet {self.quiet_s:g} s"
 
 
@@ -139,12 +161,18 @@ class Outcome:
         return d
 
 
+def detect_within_s(event):
+    """The detection window of an event that must stop, simulated s (:data:`DETECT_WITHIN_S`,
+    :data:`LOSS_DETECT_S` for a link loss)."""
+    return LOSS_DETECT_S if event.kind == "link" and event.fault == "loss" else DETECT_WITHIN_S
+
+
 def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kinds=None, sim_faults=None):
     """A seeded campaign of ``n_events`` events.
 
     The faults cycle through every simulator fault on every joint (:data:`SIM_FAULTS`), every
-    killable process, freezes of every freezable process (50-500 ms, uniform) and stamp
-    jumps (0.1-1 s back), in a seeded random order, one kind after another so that each
+    killable process, freezes of every freezable process (50-500 ms, uniform), stamp
+    jumps (0.1-1 s back) and link faults (loss, sparse loss, delay), in a seeded random order, one kind after another so that each
     kind is reached early; one event in eight is ``quiet``. Before each event a fault-free
     stretch drawn uniformly from ``quiet_s`` (simulated s). The CPU burners run in
     alternating blocks of 8 events, ``burner_share`` of them on.
@@ -157,7 +185,7 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
     burner_share : float
         0 (never), 0.5 (every other block) or 1 (always).
     kinds : iterable of str, optional
-        Restrict to these event kinds (``sim``, ``kill``, ``freeze``, ``stamp_jump``, ``quiet``).
+        Restrict to these event kinds (``sim``, ``kill``, ``freeze``, ``stamp_jump``, ``link``, ``quiet``).
     sim_faults : iterable of str, optional
         Restrict the simulator faults to these kinds (``acceleration``, ``frozen``, ...).
 
@@ -172,9 +200,10 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
         "kill": [dict(target=t) for t in KILLABLE],
         "freeze": [dict(target=t) for t in FREEZABLE],
         "stamp_jump": [dict()],
+        "link": [dict(fault=f, target="/joint_states -> monitor") for f in ("loss", "sparse", "delay")],
         "quiet": [dict()],
     }
-    weights = {"sim": 4, "kill": 1, "freeze": 2, "stamp_jump": 1}
+    weights = {"sim": 4, "kill": 1, "freeze": 2, "stamp_jump": 1, "link": 1}
     if kinds is not None:
         kinds = set(kinds)
         unknown = kinds - set(pools)
@@ -201,6 +230,12 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
         elif kind == "stamp_jump":
             spec["seconds"] = round(float(rng.uniform(0.1, 1.0)), 3)
             expect = "stop"
+        elif kind == "link":
+            f = spec["fault"]
+            spec["magnitude"] = {"loss": LOSS_SHARE, "sparse": float(SPARSE_EVERY),
+                                 "delay": round(float(rng.uniform(*DELAY_S)), 3)}[f]
+            spec["seconds"] = 0.0 if f == "loss" else LINK_S
+            expect = "stop" if f == "loss" else "none"
         elif kind == "quiet":
             expect = "none"
         else:
@@ -280,7 +315,8 @@ def score(outcomes, apparatus_stops=()):
     stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in stopped]
     by_kind = {}
     for o, x in zip(stopped, lat):
-        key = o.event.fault if o.event.kind == "sim" else o.event.kind
+        key = (o.event.fault if o.event.kind == "sim" else
+               f"link {o.event.fault}" if o.event.kind == "link" else o.event.kind)
         by_kind.setdefault(key, []).append(x)
     wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
     # braking after the stop's arrival at the controller: every stop but a killed process'
