@@ -234,6 +234,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             o.quiet_stops = [s[:3] for s in lis.stops[n:]]
             log(f"[campaign]   FALSE STOP in the fault-free stretch: {lis.stops[n][2][:200]}")
             recover(ev if ev.kind == "none" else cp.Event(ev.index, "quiet", 0.0, "none"), o)
+            o.reset_ns = 0      # that reset ended the false stop; the event's own stop is judged up to its own
         n = len(lis.stops)
         nb = len(lis.brakes)
         wall0 = time.monotonic()
