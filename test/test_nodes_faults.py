@@ -1195,6 +1195,32 @@ class TestMonitorLost:
                 bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
 
 
+def start_stop_monitor(tmp_path):
+    """The monitor node on a two-joint model, with a missing-data limit the tests never reach."""
+    path = write_model(tmp_path / "m.yaml")
+    return path, launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+                                               "window_dir": str(tmp_path / "windows")}, tmp_path)
+
+
+def stop_on_a_nan(bus, proc, seed):
+    """Once the monitor is connected: 60 ticks with a NaN at tick 50, and its active stop."""
+    assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
+                    and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+    bus.clear()
+    Y, U = stream(60, seed=seed)
+    Y[50, 1] = math.nan
+    bus.send_ticks(stamps(60), Y, U)
+    assert bus.wait(lambda: bus.active_stops(), 15)
+
+
+def send_clean_ticks(bus, n, seed):
+    """``n`` clean ticks, waited for until the monitor has a status for each."""
+    Y, U = stream(n, seed=seed)
+    ts = stamps(n)
+    bus.send_ticks(ts, Y, U)
+    assert bus.wait(lambda: len(bus.statuses(ts)) == n, 20)
+
+
 class TestResetNeedsClearedCondition:
     def test_reset_is_refused_until_clean_data_were_checked_to_the_horizon(self, bus, tmp_path):
         """Issue 19.2: ``~/reset`` clears a stop only once its condition has cleared: the
@@ -1202,34 +1228,18 @@ class TestResetNeedsClearedCondition:
         consecutive ticks checked to k*, conformant, with no fault, and fresh data. Before:
         any reset succeeded at once, whatever the data (a reset straight after a NaN sample
         resumed the arm on a stream that had just failed)."""
-        path = write_model(tmp_path / "m.yaml")
-        proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
-                                             "window_dir": str(tmp_path / "windows")}, tmp_path)
+        _, proc = start_stop_monitor(tmp_path)
         try:
-            assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                            and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
-            bus.clear()
-            Y, U = stream(60, seed=21)
-            Y[50, 1] = math.nan
-            bus.send_ticks(stamps(60), Y, U)
-            assert bus.wait(lambda: bus.active_stops(), 15)
+            stop_on_a_nan(bus, proc, seed=21)
             assert bus.active_stops()[0].kind == "invalid_sample"
             r = bus.call_trigger("/monitor_node/reset")
             assert not r.success and "has not cleared" in r.message, r.message
             # clean data checked to the horizon, but fewer than k* + 1 ticks of it: still refused
-            n_short = HISTORY + HORIZON + HORIZON // 2
-            Y, U = stream(n_short, seed=22)
-            ts = stamps(n_short)
-            bus.send_ticks(ts, Y, U)
-            assert bus.wait(lambda: len(bus.statuses(ts)) == n_short, 20)
+            send_clean_ticks(bus, HISTORY + HORIZON + HORIZON // 2, seed=22)
             r = bus.call_trigger("/monitor_node/reset")
             assert not r.success and f"of {HORIZON + 1} consecutive" in r.message, r.message
             # enough clean, fully checked ticks: the reset clears the stop
-            n = HISTORY + 2 * (HORIZON + 1) + 5
-            Y, U = stream(n, seed=23)
-            ts = stamps(n)
-            bus.send_ticks(ts, Y, U)
-            assert bus.wait(lambda: len(bus.statuses(ts)) == n, 20)
+            send_clean_ticks(bus, HISTORY + 2 * (HORIZON + 1) + 5, seed=23)
             r = bus.call_trigger("/monitor_node/reset")
             assert r.success, r.message
             assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset")
@@ -1248,9 +1258,7 @@ class TestPrivilegedOperations:
         gain change logs its ``change_reason``, granted or refused. Before: a reset was
         logged only when refused, without caller or reason; gain changes not at all."""
         from reachset_msgs.srv import ResetStop
-        path = write_model(tmp_path / "m.yaml")
-        mon = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
-                                            "window_dir": str(tmp_path / "windows")}, tmp_path)
+        path, mon = start_stop_monitor(tmp_path)
         ctl = start_controller(tmp_path, path)
         cli = bus.caller.create_client(ResetStop, "/monitor_node/reset_stop")
 
@@ -1261,20 +1269,10 @@ class TestPrivilegedOperations:
             return fut.result()
         try:
             assert cli.wait_for_service(timeout_sec=30.0), mon.log.read_text()
-            assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                            and bus.listener.count_publishers("/conformance/status"), 30), mon.log.read_text()
-            bus.clear()
-            Y, U = stream(60, seed=31)
-            Y[50, 1] = math.nan
-            bus.send_ticks(stamps(60), Y, U)
-            assert bus.wait(lambda: bus.active_stops(), 15)
+            stop_on_a_nan(bus, mon, seed=31)
             r = reset_stop("operator_console", "fault cleared by the operator")
             assert not r.success and "has not cleared" in r.message
-            n = HISTORY + 2 * (HORIZON + 1) + 5
-            Y, U = stream(n, seed=32)
-            ts = stamps(n)
-            bus.send_ticks(ts, Y, U)
-            assert bus.wait(lambda: len(bus.statuses(ts)) == n, 20)
+            send_clean_ticks(bus, HISTORY + 2 * (HORIZON + 1) + 5, seed=32)
             r = reset_stop("operator_console", "fault cleared by the operator")
             assert r.success, r.message
             assert bus.wait(lambda: not bus.stops[-1].active and "operator_console" in bus.stops[-1].reason)
