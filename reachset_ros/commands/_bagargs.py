@@ -127,15 +127,11 @@ def read_spec(args, joints, dt):
     :func:`reader_options` reads, as plain values for the workers)."""
     from ..fleet.tasks import ReadSpec
     names = parse_joints(joints) if isinstance(joints, str) else joints
-    mode = getattr(args, "input", "topic")
+    opts = reader_options(args)         # the same checks (and errors) as a one-process run
     effort = None
-    if mode == "effort":
-        reader_options(args)            # the same checks (and errors) as a single-process run
+    if opts["effort"] is not None:      # the workers rebuild the robot model from these
         lock = getattr(args, "lock_joints", None)
         effort = (args.robot, args.nominal, None if lock is None else tuple(_names(lock, "--lock-joints")))
-    elif getattr(args, "robot", None) is not None or getattr(args, "nominal", None) is not None \
-            or getattr(args, "lock_joints", None):
-        reader_options(args)
-    jn = getattr(args, "joint_names", None)
+    jn = opts["joint_names"]
     return ReadSpec(None if names is None else tuple(names), float(dt), tuple(topics_of(args)), effort,
-                    None if jn is None else tuple(_names(jn, "--joint-names")))
+                    None if jn is None else tuple(jn))

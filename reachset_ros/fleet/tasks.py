@@ -158,10 +158,7 @@ def bag_header(path, read: ReadSpec, count=HEADER_MESSAGES):
     for t in wanted:
         if not seen[t]:
             raise ReachsetError(f"{p}: no {t} messages")
-    if read.effort is not None:
-        joints = [n for n in names[y_topic]]
-    else:
-        joints = [n for n in names[y_topic] if n in names[u_topic]]
+    joints = [n for n in names[y_topic] if read.effort is not None or n in names[u_topic]]
     if read.joints is not None:
         joints = [n for n in read.joints if n in joints]
     st = np.unique(np.asarray(stamps, np.int64))
