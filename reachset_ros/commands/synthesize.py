@@ -13,12 +13,16 @@ Modes:
 - ``reidentify``: the controller of ``--model`` is kept, only the sets are re-identified
   (the inner linear programme of eq. 10; paper Sec. III-D, step 3).
 
+Theorem 1 holds the initial-state estimate's error as a set (``--initial-state-set``, the
+default since issue 16.1; ``--no-initial-state-set``: the paper's eq. 13).
+
 ``--lqg-r R...`` adds the LQG baseline of the paper's Table IV (with the result's sets).
 ``--out`` writes a model file (``reachset check`` accepts it) whose joints carry the gains.
 ``--workers N`` / ``--scheduler ADDRESS``: the sweep runs one task per bag on Dask
 (:mod:`reachset_ros.fleet`); the result is the single-process one to the bit (provenance and
 timings aside); ``--plot`` needs the series in this process and is refused with them.
 """
+import argparse
 import math
 import sys
 import time
@@ -68,9 +72,10 @@ def add_arguments(p):
                         "constrained by the data); recorded in the model file")
     p.add_argument("--estimator", default=None, choices=sorted(ESTIMATORS),
                    help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
-    p.add_argument("--initial-state-set", action="store_true", default=None,
-                   help="Theorem 1 with the estimator's initial-state error as a set (as identify; much smaller "
-                        "sets; docs/synthesis.md); reidentify: the model's choice")
+    p.add_argument("--initial-state-set", action=argparse.BooleanOptionalAction, default=None,
+                   help="Theorem 1 with the estimator's initial-state error as a set (default; as identify "
+                        "--initial-state-set: much smaller sets, docs/synthesis.md); --no-initial-state-set: "
+                        "the paper's eq. 13; reidentify: the model's choice")
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
                    help="lower bounds on [alpha_W..., alpha_V...]")
     p.add_argument("--reference-method", type=int, choices=[int(m) for m in ReferenceMethod],

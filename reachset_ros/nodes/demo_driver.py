@@ -146,7 +146,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
 
     ``inflation``: the monitor checks against the identified sets scaled by ``1 + inflation``
     (the model's ``inflation``). None (default): calibrated by 2-fold cross-validation on the
-    two training recordings (``reachset identify BAG1 BAG2 --calibrate 2``,
+    two training recordings (``reachset identify BAG1 BAG2 --calibrate 2 --initial-state-set``,
     :mod:`reachset_ros.conformance.calibration`), and the second synthesis is certified for
     it. ``stop``: a :class:`reachset_ros.launch.StopRequest`; once it
     has a signal, the next spin raises :class:`reachset_ros.launch.Interrupted` and every node
@@ -317,11 +317,12 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
 
 def calibrate_inflation(bags, workdir):
     """The monitor's inflation from the training recordings alone: ``reachset identify BAGS
-    --calibrate 2 --json`` (each recording a fold: the sets identified on one must hold on the
-    other, :func:`reachset_ros.conformance.calibration.cross_validate`). Returns
+    --calibrate 2 --initial-state-set --json`` (the synthesis' Theorem-1 rows; each recording a
+    fold: the sets identified on one must hold on the other, :func:`reachset_ros.conformance.calibration.cross_validate`). Returns
     ``(inflation, details)``; a flagged joint (no grid value held) is reported, and its
     largest grid value is used."""
-    cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", "2", "--json"]
+    cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags), "--calibrate", "2",
+           "--initial-state-set", "--json"]
     # at low priority, as the synthesis node's child: it must not starve the running nodes
     p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out, err = p.communicate()

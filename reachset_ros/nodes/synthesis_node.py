@@ -252,8 +252,7 @@ class SynthesisNode(Node):
                 return False, f"the current model {current}: {e}", None, ""
             if inflation < 0:
                 inflation = float(cur.inflation)
-            if cur.initial_state_set:
-                cmd += ["--initial-state-set"]
+            cmd += ["--initial-state-set" if cur.initial_state_set else "--no-initial-state-set"]
         if inflation >= 0:
             cmd += ["--inflation", repr(inflation)]
         cmd += [a for a in self.get_parameter("extra_args").value if a]

@@ -31,11 +31,11 @@ from .reference_error import ReferenceClass, ReferenceMethod
 def iterate(record, series, space, iterations=2, final_reidentify=True, plant=None, estimator=None,
             horizon=125, u_max=26.0, u_ff=2.0, search=None, seed=0,
             reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004, allow_weak_horizon=False,
-            reference_class=None, initial_state_set=False):
+            reference_class=None, initial_state_set=True):
     """The paper's iterative procedure (Sec. III-D, Fig. 4).
 
-    ``initial_state_set``: Theorem 1 with the estimator's initial-state set (as
-    :func:`synthesize_bags`).
+    ``initial_state_set``: Theorem 1 with the estimator's initial-state set (default, as
+    :func:`synthesize_bags`); false: the paper's eq. 13.
 
     Data without references need ``reference_class`` (:class:`ReferenceClass`, Appendix B).
 
@@ -196,7 +196,8 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     initial_state_set : bool, optional
         Theorem 1 with the estimator's initial-state set
         (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`); recorded in the model.
-        Default false (reidentify: the model's).
+        Default true (reidentify: the model's); false: the paper's eq. 13 (docs/synthesis.md,
+        "Where the room in ||R*_e|| is").
     fleet : reachset_ros.fleet.cluster.Fleet, optional
         An open fleet: the bags are swept one task per bag on it (:mod:`reachset_ros.fleet`),
         read as ``fleet_read`` (a :class:`~reachset_ros.fleet.ReadSpec`; its joints and dt are
@@ -242,7 +243,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     if not (math.isfinite(inflation) and inflation >= 0):
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
-    initial_state_set = bool(initial_state_set)
+    initial_state_set = True if initial_state_set is None else bool(initial_state_set)
     thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
     devs = checker = sha256 = series = None
     if fleet is None:
