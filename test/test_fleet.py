@@ -173,6 +173,24 @@ def test_synthesize_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
     assert "--plot needs the whole series in one process" in r.err and len(r.err.strip().splitlines()) == 1
 
 
+def test_reidentify_with_the_recorded_loop_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
+    """``synthesize --mode reidentify --workers 2``: the bags' recorded loop (estimates,
+    references, the kept gains' replay) is reduced per bag on the workers and merged exactly:
+    the same model and the same ``recorded_loop`` report as one process."""
+    _, paths, cfg = fleet_bags
+    kept = tmp_path / "kept.yaml"     # the gains the bags were recorded with (sr.DEFAULT_GAINS)
+    run(["synthesize", *paths[:3], "--joints", JOINTS[1], "--config", cfg, "--horizon", 60, "--fix", "omega=20",
+         "--fix", "zeta=1", "--out", kept], capsys)
+    outs, loops = {}, {}
+    for name, extra in (("single", []), ("workers", ["--workers", 2])):
+        outs[name] = tmp_path / f"{name}.yaml"
+        r = run(["synthesize", *paths[:3], "--mode", "reidentify", "--model", kept, "--out", outs[name], "--json",
+                 *extra], capsys)
+        loops[name] = json.loads(r.out)["joints"][JOINTS[1]]["recorded_loop"]
+    assert loops["single"] == loops["workers"] and loops["single"]["verified"] and loops["single"]["inside"]
+    assert model_body(outs["single"])[0] == model_body(outs["workers"])[0]
+
+
 # ------------------------------------------------------------------ refusals
 def test_bags_that_disagree_are_refused_before_any_sweep(fleet_bags, capsys, tmp_path):
     """Different joints, or a different sampling period: exit 2 with one line naming the bag,

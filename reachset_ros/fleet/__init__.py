@@ -22,17 +22,19 @@ def _headers(fleet, bags, read):
     return headers
 
 
-def extremes(fleet, bags, read: ReadSpec, sweep: SweepSpec, references=False):
+def extremes(fleet, bags, read: ReadSpec, sweep: SweepSpec, references=False, loops=None):
     """The deviation extremes of all bags, one task per bag, merged exactly.
 
     Returns
     -------
     FleetSweep
         ``devs`` {name: Deviations}, ``report``, ``references`` ({name: [Reference, ...]} in
-        bag order when ``references`` is true: ``synthesize``) and the bags' ``sha256``.
+        bag order when ``references`` is true: ``synthesize``), the bags' ``sha256`` and, with
+        ``loops`` ({name: (observer, controller)}, reidentify), the recorded loops' extremes.
     """
     _headers(fleet, bags, read)
-    parts = fleet.map(bag_extremes, list(map(str, bags)), read, sweep, what="sweep", references=references)
+    parts = fleet.map(bag_extremes, list(map(str, bags)), read, sweep, what="sweep", references=references,
+                      loops=loops)
     return merge_extremes(parts, sweep.estimator.history, sweep.horizon, bags)
 
 

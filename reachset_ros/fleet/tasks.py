@@ -106,6 +106,7 @@ class BagExtremes:
     references: dict | None
     sha256: str             # of the bag's files (the model's provenance)
     messages: int
+    loops: dict | None = None   # name -> LoopExtremes or None (reidentify: the recorded closed loop)
 
 
 @dataclass(frozen=True)
@@ -187,7 +188,7 @@ def require_agreement(headers, read: ReadSpec):
                                 f"not dt = {read.dt * 1e3:.4g} ms like the other bags' (--dt, or the model's dt)")
 
 
-def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False):
+def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False, loops=None):
     """Read one bag and reduce each joint's test cases to Theorem 1's left-hand sides.
 
     Returns
@@ -195,7 +196,9 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False):
     BagExtremes
         ``devs[name]`` is :func:`~reachset_ros.conformance.deviation_extremes` of the bag's
         series (``allow_empty``: a bag too short for a test case contributes nothing);
-        ``references``: :func:`~reachset_ros.bags.read_references` of the bag when asked.
+        ``references``: :func:`~reachset_ros.bags.read_references` of the bag when asked;
+        ``loops`` ({name: (observer, controller)}, reidentify): per joint the recorded closed
+        loop's :func:`~reachset_ros.synthesis.recorded_loop.series_loop_extremes`.
     """
     series, report = read.read(path)
     devs, longest = {}, {}
@@ -206,11 +209,18 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False):
         except ReachsetError as e:
             raise ReachsetError(f"{path}: joint {name}: {e}") from None
         longest[name] = max((b - a for a, b in s.segments), default=0)
-    refs = None
-    if references:
+    refs = loop_ext = None
+    if references or loops:
         from ..bags.references import read_references
         refs = read_references([Path(path)], list(series), read.dt)
-    return BagExtremes(str(path), tuple(series), devs, longest, report, refs, file_sha256(path), _messages(report))
+    if loops:
+        from ..bags.references import read_estimates
+        from ..synthesis.recorded_loop import series_loop_extremes
+        est = read_estimates([Path(path)], list(series)) or {}
+        loop_ext = {n: series_loop_extremes(sweep.plant, *loops[n], series[n], est.get(n), refs.get(n, ()))
+                    for n in loops if n in series}
+    return BagExtremes(str(path), tuple(series), devs, longest, report, refs, file_sha256(path), _messages(report),
+                       loop_ext)
 
 
 def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis):
@@ -245,6 +255,7 @@ class FleetSweep:
     report: ReadReport
     references: dict | None  # name -> [Reference, ...] in bag order (synthesize), else None
     sha256: tuple            # per bag, in bag order
+    loops: dict | None = None  # name -> merged LoopExtremes or None (reidentify), else None
 
 
 def merge_extremes(parts, history, horizon, bags):
@@ -262,7 +273,12 @@ def merge_extremes(parts, history, horizon, bags):
         for p in parts:
             for n, rs in p.references.items():
                 refs.setdefault(n, []).extend(rs)
-    return FleetSweep(devs, merge_reports([p.report for p in parts]), refs, tuple(p.sha256 for p in parts))
+    loops = None
+    if parts[0].loops is not None:
+        from ..synthesis.recorded_loop import merge
+        loops = {n: merge([p.loops.get(n) for p in parts]) for n in parts[0].loops}
+    return FleetSweep(devs, merge_reports([p.report for p in parts]), refs, tuple(p.sha256 for p in parts),
+                      loops)
 
 
 def merge_checks(parts, history, horizon, bags):

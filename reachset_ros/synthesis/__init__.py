@@ -25,6 +25,9 @@ Submodules:
   the outer search.
 * :mod:`~reachset_ros.synthesis.result`: :class:`JointResult` and the final soundness and
   conformance check.
+* :mod:`~reachset_ros.synthesis.recorded_loop`: a re-identification's recorded closed loop
+  (the bags' tracking error under the kept gains, verified by replaying the law) as rows that
+  keep it inside ``R*_e``.
 * :mod:`~reachset_ros.synthesis.modes`: :func:`combined`, :func:`separate`,
   :func:`reidentify`, :func:`lqg_baseline`, :func:`synthesize` (several joints).
 * :mod:`~reachset_ros.synthesis.pipeline`: bags in, model out (:func:`synthesize_bags`) and

@@ -17,6 +17,7 @@ from ..errors import InfeasibleError, ReachsetError
 from ..systems.closedloop import analyze, close_loop, radius_coefficients
 from ..systems.controllers import lqg
 from ..systems.plant import lwa4p_robot_model
+from . import recorded_loop
 from .config import PARAMS, SearchSpace
 from .reference_error import ReferenceMethod
 from .result import finalize
@@ -115,7 +116,9 @@ def reidentify(problem, gains, dt=None):
     """Controller fixed (``gains`` of a model file): only the sets are re-identified.
 
     Solves the inner problem of eq. 10 at the fixed parameters: min ||R_e|| over conformant
-    ``alpha`` with R_u inside U_p (paper Sec. III-D step 3).
+    ``alpha`` with R_u inside U_p (paper Sec. III-D step 3). A problem holding the bags'
+    recorded loop (:func:`reachset_ros.synthesis.recorded_loop.constrain`) also keeps the
+    recorded tracking error inside R*_e; ``extra["recorded_loop"]`` reports it.
     """
     t0 = time.perf_counter()
     pb = problem
@@ -124,7 +127,10 @@ def reidentify(problem, gains, dt=None):
     best = ev(space.values)
     if not best.feasible:
         _infeasible(pb, space, best, ev, "re-identification with the fixed controller")
-    return finalize(pb, space, best.values, best.alpha, "reidentify", ev.count, t0)
+    res = finalize(pb, space, best.values, best.alpha, "reidentify", ev.count, t0)
+    if pb.recorded_loop is not None:
+        res.extra["recorded_loop"] = recorded_loop.report(pb, res)
+    return res
 
 
 def lqg_baseline(problem, alpha_w, alpha_v, r_values, Q=None, form="predictor"):

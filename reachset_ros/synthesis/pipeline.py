@@ -17,12 +17,13 @@ import numpy as np
 from .. import conformance as cf
 from ..bags import read_joint_series
 from ..bags.messages import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC
-from ..bags.references import read_references
+from ..bags.references import read_estimates, read_references
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
-from .config import SearchSpace, load_config, u_max_for
+from . import recorded_loop as rl
+from .config import SearchSpace, components_from_gains, load_config, u_max_for
 from .modes import synthesize
 from .problem import problems_from_series
 from .reference_error import ReferenceClass, ReferenceMethod
@@ -246,6 +247,9 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     initial_state_set = True if initial_state_set is None else bool(initial_state_set)
     thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
     devs = checker = sha256 = series = None
+    # reidentify: the kept gains' loops, to read the bags' recorded closed loop (recorded_loop)
+    loops = ({n: components_from_gains(gains[n], plant.dt) for n in names if gains.get(n)}
+             if mode == "reidentify" else None)
     if fleet is None:
         series, report = read_joint_series(list(bags), names, plant.dt, tuple(topics) if topics else
                                            (JOINT_STATES, PLANT_INPUT), **(reader or {}))
@@ -257,7 +261,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         from .. import fleet as fl
         read = replace(fleet_read, joints=None if names is None else tuple(names), dt=plant.dt)
         sweep = fl.SweepSpec(plant, est, horizon, thm)
-        swept = fl.extremes(fleet, bags, read, sweep, references=True)
+        swept = fl.extremes(fleet, bags, read, sweep, references=True, loops=loops)
         devs, report, sha256 = swept.devs, swept.report, swept.sha256
         names = list(devs)
         checker = fl.Checker(fleet, bags, read, sweep)
@@ -292,6 +296,14 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
                                     thm=thm, reference_class=classes, inflation=inflation, devs=devs,
                                     checker=checker)
+    if loops:      # the sets must also hold the closed loop the bags recorded with the kept gains
+        if fleet is None:
+            est_rows = read_estimates(list(bags), names) or {}
+            loop_ext = {n: rl.series_loop_extremes(plant, *loops[n], series[n], est_rows.get(n), refs.get(n, ()))
+                        for n in names if n in loops}
+        else:
+            loop_ext = swept.loops or {}
+        problems = [rl.constrain(pb, gains[pb.name], loop_ext.get(pb.name)) for pb in problems]
     results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
     return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
                         int(reference_method), bags, k_min, weak, reference_class, inflation, initial_state_set,

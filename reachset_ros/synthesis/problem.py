@@ -145,6 +145,11 @@ class JointProblem:
     #: a fleet run (:mod:`reachset_ros.fleet`) holds no series here (``y``, ``u`` None) but the
     #: reduced ``devs``; ``checker(name, xi)`` then counts a non-conformant xi's violating ticks
     checker: object = None
+    #: a re-identification's recorded closed loop (:class:`~reachset_ros.synthesis.recorded_loop.LoopExtremes`)
+    #: and how many of its rows the polytope holds (None: not constrained), see
+    #: :func:`~reachset_ros.synthesis.recorded_loop.constrain`
+    recorded_loop: object = None
+    loop_rows: int = None
 
     @property
     def set_scale(self):
