@@ -405,18 +405,18 @@ def test_infeasible_synthesis_names_the_binding_constraint(case, tmp_path, clean
             r"joint arm_1_joint: combined synthesis: U_ff \(\+-2\) and the reference error \(0\) alone "
             r"exceed U_p = \[-1\.5, 1\.5\]$")
     elif case == "r_u_radius":
-        argv, want = base + ["--u-max", "2.05"], (
+        argv, want = base + ["--u-max", "2.01"], (
             r"joint arm_1_joint: combined synthesis: no gains keep R_u inside U_p: smallest achievable R_u "
-            r"radius [0-9.]+ > u_max 2\.05 - u_ff 2 = 0\.05 \(best of \d+ parameter vectors, at omega=[0-9.]+, "
+            r"radius [0-9.]+ > u_max 2\.01 - u_ff 2 = 0\.01 \(best of \d+ parameter vectors, at omega=[0-9.]+, "
             r"zeta=[0-9.]+\)$")
     else:
         gains = tmp_path / "g.yaml"
         assert run(["synthesize", clean_bag, "--horizon", HORIZON, "--config", cfg, "--u-max", "8", *refs,
                     "--out", gains], capsys)[0] == 0
-        argv, want = ["synthesize", clean_bag, "--mode", "reidentify", "--model", gains, "--u-max", "3"], (
+        argv, want = ["synthesize", clean_bag, "--mode", "reidentify", "--model", gains, "--u-max", "2.01"], (
             r"joint arm_1_joint: re-identification with the fixed controller: the controller cannot keep R_u "
-            r"inside U_p with sets conformant to these data: smallest achievable R_u radius [0-9.]+ > u_max 3 - "
-            r"u_ff 2 = 1 \(omega=[0-9.]+, zeta=[0-9.]+, h1=[0-9.]+, h2=[0-9.]+\); synthesise again with these data$")
+            r"inside U_p with sets conformant to these data: smallest achievable R_u radius [0-9.]+ > u_max 2\.01 - "
+            r"u_ff 2 = 0\.01 \(omega=[0-9.]+, zeta=[0-9.]+, h1=[0-9.]+, h2=[0-9.]+\); synthesise again with these data$")
     code, so, se = run([*argv, "--out", out], capsys)
     assert_one_line_error(code, so, se, "synthesize", [])
     assert re.fullmatch(r"reachset synthesize: error: " + want, se.strip()), se

@@ -330,11 +330,11 @@ def test_cli_synthesize_json_out_plots_and_check(bag, small_config, tmp_path, ca
 
 def test_cli_infeasible_u_max_exits_2_with_one_line_and_no_file(bag, small_config, tmp_path, capsys):
     out = tmp_path / "never.yaml"
-    code, so, se = run_cli(["synthesize", bag, "--joints", JOINTS[0], "--u-max", "2.5", "--out", out,
+    code, so, se = run_cli(["synthesize", bag, "--joints", JOINTS[0], "--u-max", "2.03", "--out", out,
                             "--config", small_config], capsys)
     assert code == 2
     assert len(se.strip().splitlines()) == 1
-    assert "R_u inside U_p" in se and "u_max 2.5" in se
+    assert "R_u inside U_p" in se and "u_max 2.03" in se
     assert not out.exists() and not list(tmp_path.glob("never.yaml*"))
 
 
