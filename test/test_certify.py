@@ -98,3 +98,65 @@ def test_controller_gate_certifies_the_model_inflation(tmp_path, monkeypatch, in
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_recorded_u_e_ff_holds_only_for_the_models_own_gains():
+    """U_e,ff (Appendix B) is the reference error of one loop. HEAD certified other gains with
+    the model's recorded value (omega 22 here with the number of omega 24.4): now refused,
+    unless the caller gives theirs."""
+    rec = {"reference_error": {"u_e_ff": [-0.5, 0.5]}}
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
+                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=rec)
+    assert certify(TABLE_II, js, 0.0, 26.0, 2.0, plant=PLANT).ok
+    other = Gains(omega=22.0, zeta=0.96, h1=15.0, h2=30.0)
+    c = certify(other, js, 0.0, 26.0, 2.0, plant=PLANT)
+    assert not c.ok and c.ru is None and "recorded for the model's gains (observer=hg" in c.reason
+    assert "omega=24.4" in c.reason and "omega=22" in c.reason
+    assert certify(other, js, 0.0, 26.0, 2.0, u_e_ff=(-0.7, 0.7), plant=PLANT).ok
+
+
+def test_a_reference_class_recomputes_u_e_ff_for_new_gains():
+    """With the reference class in the model the gate computes the new loop's U_e,ff (the
+    class's sound bound) and certifies with it; the model's own gains keep the recorded one."""
+    from reachset_ros.synthesis.reference_error import ReferenceClass, class_reference_error, u_e_ff_for_gains
+    from reachset_ros.systems.gains import certify_pair
+    rc = ReferenceClass.parse("qdd_max=2")
+    own = class_reference_error(PLANT, *TABLE_II.build(0.004), rc)
+    rec = {"reference_error": {"u_e_ff": [own.u_lo, own.u_hi], "reference_class": rc.as_dict()}}
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
+                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=rec)
+    model = mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
+                                 {"arm_1_joint": js}, 0.0)
+    other = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0)
+    assert u_e_ff_for_gains(TABLE_II, js, PLANT) is None
+    want = class_reference_error(PLANT, *other.build(0.004), rc)
+    assert u_e_ff_for_gains(other, js, PLANT) == (want.u_lo, want.u_hi) != (own.u_lo, own.u_hi)
+    pc = certify_pair({"arm_1_joint": other}, model, [26.0], 2.0, 0.004, u_e_ff_for=u_e_ff_for_gains)
+    assert pc.certified["arm_1_joint"].u_e_ff == (want.u_lo, want.u_hi)
+    with pytest.raises(ReachsetError, match="recorded for the model's gains"):
+        certify_pair({"arm_1_joint": other}, model, [26.0], 2.0, 0.004)
+
+
+def test_controller_gate_refuses_new_gains_the_model_cannot_certify(tmp_path, monkeypatch):
+    """The controller node (real rclpy) under a synthesised model whose U_e,ff came from
+    recorded references: a live omega change is refused naming U_e,ff; its own gains run."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+
+    from reachset_ros.nodes.controller_node import ControllerNode
+    monkeypatch.chdir(tmp_path)
+    path = _model(tmp_path / "m.yaml", 0.0, extra={"reference_error": {"u_e_ff": [-0.5, 0.5]}})
+    rclpy.init(args=["--ros-args", "-p", f"model_file:={path}", "-p", "joints:=[arm_1_joint]",
+                     "-p", "u_max:=[26.0]", "-p", "omega:=[24.4]", "-p", "zeta:=[0.96]",
+                     "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
+    try:
+        node = ControllerNode()
+        try:
+            p = Parameter(name="omega", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+                                                             double_array_value=[22.0]))
+            res = node.set_parameters([rclpy.parameter.Parameter.from_parameter_msg(p)])[0]
+            assert not res.successful and "U_e,ff" in res.reason and "omega=22" in res.reason, res.reason
+            assert list(node.get_parameter("omega").value) == [24.4]
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

@@ -92,7 +92,7 @@ def monitor(ros, nodes, tmp_path):
 def fresh(ros, nodes):
     """Controller and observer at the initial gains without a model, the synthesis node without one."""
     for node, values in (("controller_node", {**INITIAL, "u_max": INITIAL_U_MAX, "model_file": ""}),
-                         ("observer_node", INITIAL), ("synthesis_node", {"model_file": "", "observer": "hg"})):
+                         ("observer_node", {**INITIAL, "model_file": ""}), ("synthesis_node", {"model_file": "", "observer": "hg"})):
         ok, why = set_remote_parameters(ros, node, values)
         assert ok, f"{node}: {why}"
 

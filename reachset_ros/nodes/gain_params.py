@@ -10,6 +10,7 @@ from array import array
 import numpy as np
 
 from ..errors import ReachsetError
+from ..synthesis.reference_error import u_e_ff_for_gains
 from ..systems.gains import DEFAULTS, ESO_INPUTS, Gains, certify_pair
 from .common import desc
 
@@ -100,7 +101,9 @@ def u_max_array(value, n):
 def validate_pair(node, values, model):
     """The gate of both nodes: :func:`~reachset_ros.systems.gains.certify_pair` of the gains
     a proposed set of parameters gives (``values``: gain parameters, optionally u_max,
-    u_ff_bound, allow_uncertified; the node's current values otherwise). Returns a dict:
+    u_ff_bound, allow_uncertified; the node's current values otherwise), with U_e,ff of gains
+    other than the model's over its reference class
+    (:func:`~reachset_ros.synthesis.reference_error.u_e_ff_for_gains`). Returns a dict:
     ``gains``, ``laws``, ``settling``, ``uncertified`` (from the certificate), ``u_max``,
     ``u_ff``, ``model``; raises ReachsetError with the reason."""
     def value(name):
@@ -108,7 +111,8 @@ def validate_pair(node, values, model):
     gains = gains_from(values, node.joints)
     u_max = u_max_array(value("u_max"), len(node.joints))
     u_ff = float(value("u_ff_bound"))
-    pc = certify_pair(gains, model, u_max, u_ff, node.dt, bool(value("allow_uncertified")))
+    pc = certify_pair(gains, model, u_max, u_ff, node.dt, bool(value("allow_uncertified")),
+                      u_e_ff_for=u_e_ff_for_gains)
     return dict(gains=pc.gains, laws=pc.laws, settling=pc.settling, uncertified=pc.uncertified,
                 u_max=u_max, u_ff=u_ff, model=model)
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import ReachsetError
 from ..sets.reachability import NotStableError, radius_coefficients, reachable_subspace
+from ..systems.gains import Gains
 
 
 class ReferenceMethod(enum.IntEnum):
@@ -661,3 +662,26 @@ def class_reference_error(plant, observer, controller, reference_class, errors=(
     bound = np.minimum(np.minimum(b1, b2), bnd3) * (1.0 + CLASS_ROUNDOFF)
     e, u = bound[:-1], float(bound[-1])
     return ReferenceErrorSets(-e, e.copy(), -u, u, a, 0, 0)
+
+
+def u_e_ff_for_gains(gains, joint_sets, plant):
+    """``U_e,ff = (lo, hi)`` of ``gains`` over the reference class a model joint records, or None.
+
+    For the gate of a live gain change (:func:`reachset_ros.systems.gains.certify_pair`):
+    ``U_e,ff`` (Appendix B) depends on the loop, and the model records it for its own gains
+    only. When ``gains`` are the model's, or the model records no reference class (the
+    synthesis bounded recorded references, which the model does not hold), returns None:
+    the recorded value, or a refusal (:func:`~reachset_ros.systems.gains.recorded_for_other_gains`).
+    Otherwise the class's sound bound (:func:`class_reference_error`) for the new loop; None
+    when it does not converge (refused then, too).
+    """
+    rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {})
+    rc, own = rec.get("reference_class"), getattr(joint_sets, "gains", None)
+    if not rc or not own or Gains.from_model(own).model_dict() == gains.model_dict():
+        return None
+    obs, ctrl = gains.build(plant.dt)
+    try:
+        r = class_reference_error(plant, obs, ctrl, ReferenceClass.from_dict(rc))
+    except NotStableError:
+        return None
+    return (float(r.u_lo), float(r.u_hi))

@@ -24,6 +24,7 @@ from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 
 __all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff",
+           "recorded_for_other_gains",
            "certified_inflation", "model_limits",
            "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS"]
 
@@ -176,6 +177,32 @@ def recorded_u_e_ff(joint_sets):
     return (lo, hi)
 
 
+def _describe(g):
+    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in g.model_dict().items())
+
+
+def recorded_for_other_gains(gains: Gains, joint_sets):
+    """Why the model's recorded ``U_e,ff`` does not hold for ``gains`` ('' when it does).
+
+    ``U_e,ff`` (paper Appendix B) is the input part of the reference error of one closed
+    loop: the synthesis records it with the gains it certified (``JointSets.gains``). For
+    other gains it is another number (e.g. 6.89 at omega 20, 7.62 at omega 22 for |qdd_d| <= 2),
+    so a certificate with the recorded value would be wrong: the caller must compute theirs
+    (:func:`reachset_ros.synthesis.reference_error.u_e_ff_for_gains` over the model's
+    reference class) or the change is refused.
+    """
+    rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {})
+    own = getattr(joint_sets, "gains", None)
+    if rec.get("u_e_ff") is None or not own:
+        return ""
+    mine = Gains.from_model(own)
+    if mine.model_dict() == gains.model_dict():
+        return ""
+    return (f"U_e,ff (the reference error's input part, Appendix B) is recorded for the model's gains "
+            f"({_describe(mine)}), not for these ({_describe(gains)}), and no reference class to recompute it "
+            "is known: synthesise or re-identify for these gains")
+
+
 def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: float, u_e_ff=None, plant=None):
     """Certify ``R*_u`` inside ``U_p`` for the sets the monitor actually checks.
 
@@ -183,7 +210,9 @@ def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: floa
     (:meth:`JointSets.xi`), so the guarantee covers those sets:
     ``R*_u = [0 I] R~_cl,e[k_inf]((1 + inflation) alpha) (+) U_ff (+) U_e,ff`` (paper
     Sec. III-A and Appendix B; ``U_ff = [-u_ff, u_ff]``; ``U_e,ff`` the reference feedforward
-    error, by default the model's synthesis record, :func:`recorded_u_e_ff`), with the sound
+    error, by default the model's synthesis record, :func:`recorded_u_e_ff`, which holds only
+    for the gains it was synthesised with: other gains without ``u_e_ff`` are refused,
+    :func:`recorded_for_other_gains`), with the sound
     outer bound of :func:`~reachset_ros.systems.closedloop.analyze` (outward rounded). This is
     the one certification of gains against sets: ``check_gains``, the controller node's gate
     (model load, gain or ``u_max`` change), and the demo's monitored model all call it.
@@ -198,6 +227,10 @@ def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: floa
     if not math.isfinite(inflation) or inflation < 0:
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation!r}")
     ue = recorded_u_e_ff(joint_sets) if u_e_ff is None else tuple(float(v) for v in u_e_ff)
+    if u_e_ff is None:
+        other = recorded_for_other_gains(gains, joint_sets)
+        if other:
+            return Certificate(False, other, None, None, inflation, ue)
     plant = plant or lwa4p_joint_plant()
     cl = closedloop.close_loop(plant, gains.build_observer(plant.dt), gains.build_controller())
     st = closedloop.stability(cl)
@@ -297,7 +330,8 @@ class PairCertificate:
     uncertified: tuple
 
 
-def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncertified: bool = False):
+def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncertified: bool = False,
+                 u_e_ff_for=None):
     """The one gate for a change of observer or controller gains, whichever node receives it.
 
     For each joint the pair (its observer and its feedback law, one :class:`Gains`) must give
@@ -321,6 +355,12 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
     dt : float
         The nodes' tick period; a model must have the same.
     allow_uncertified : bool
+    u_e_ff_for : callable, optional
+        ``u_e_ff_for(gains, joint_sets, plant) -> (lo, hi) or None``: the ``U_e,ff`` of
+        gains other than the model's (the nodes pass
+        :func:`reachset_ros.synthesis.reference_error.u_e_ff_for_gains`, which bounds it over
+        the model's reference class); None keeps the recorded one, which :func:`certify`
+        accepts only for the model's own gains.
 
     Returns
     -------
@@ -344,7 +384,8 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
             raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
         js = model.joints.get(j) if model is not None else None
         if js is not None:
-            c = certify(g, js, model.inflation, float(u_max[i]), u_ff, plant=model.plant)
+            ue = u_e_ff_for(g, js, model.plant) if u_e_ff_for is not None else None
+            c = certify(g, js, model.inflation, float(u_max[i]), u_ff, u_e_ff=ue, plant=model.plant)
             if not c.ok:
                 raise ReachsetError(f"joint {j}: {c.reason}")
             certified[j] = c
