@@ -125,6 +125,8 @@ def loop_extremes(plant, observer, controller, y, u, x_hat, q_d, qd_d, qdd_d, se
     if tuple(names[:ne]) != ("q", "qd")[:ne]:
         raise ReachsetError(f"the tracking error's coordinates {names[:ne]} are not (q, qd)")
     rho = stability(cl).spectral_radius
+    if not rho < 1.0:
+        raise ReachsetError(f"the kept gains' closed loop is not stable (spectral radius {rho:.6g})")
     settle = settling_ticks(rho)
     rho_o = float(np.max(np.abs(np.linalg.eigvals(observer.Ao)))) if observer.Ao.size else 0.0
     startup = settling_ticks(rho_o, STARTUP_TOL) if rho_o < 1.0 else None
