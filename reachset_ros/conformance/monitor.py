@@ -584,7 +584,7 @@ class CoverageWatch:
         if why is None:
             return None
         self._restart()
-        return FaultEvent(stamp, "coverage", "coverage: " + why)
+        return FaultEvent(stamp, "coverage", why)   # kind and reason are separate fields
 
     def _stream(self):
         """The measured stream: median stamp step and how many of the recent steps were gaps."""

@@ -35,6 +35,7 @@ from std_srvs.srv import Trigger
 from .. import launch
 from ..robot.lwa4p import default_nominal_path
 from ..sim import campaign as cp
+from ..sim.simulator import DT as SIM_DT
 from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns
 from .demo_driver import CORE_TOPICS, INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, DemoDriver
 
@@ -302,7 +303,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 driver.spin_for(6.0, until=lambda: len(lis.brakes) > nb)
                 mine = [b for b in lis.brakes[nb:] if b[1] > 0]
                 if mine:
-                    o.braking_ticks = (mine[0][0] - mine[0][1]) / 4e6
+                    o.braking_ticks = (mine[0][0] - mine[0][1]) / (SIM_DT * 1e9)   # in the loop's ticks
             after = (o.stops[0][1] - o.latency_from()) * 1e-6
             log(f"[campaign]   stop {o.stops[0][2][:140]!r}: {after:.1f} ms after the "
                 f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
