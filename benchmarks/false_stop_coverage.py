@@ -20,14 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from reachset_ros.bags.messages import header_stamp_ns
 from reachset_ros.bags.references import read_references
 from reachset_ros.bags.series import read_messages
 
 BEFORE_NS = 2_000_000_000
-
-
-def _stamp(msg):
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def _fastest(refs, joint, lo=None, hi=None):
@@ -56,7 +53,7 @@ def main(argv=None):
         stops = {}
         for _, _, m in read_messages([blk], ["/safe_stop"]):
             if m.active and m.kind == "violation":
-                stops.setdefault(m.reason, _stamp(m))
+                stops.setdefault(m.reason, header_stamp_ns(m))
         hits = [(r, s) for r, s in stops.items() if any(f.startswith(r[:60]) or r.startswith(f[:60]) for f in false)]
         if not hits:
             continue

@@ -71,8 +71,7 @@ def test_reidentify_keeps_the_recorded_tracking_error_inside_r_e(recording):
     ext = _extremes(rec, sr.DEFAULT_GAINS)
 
     def reach(res):
-        c, r = np.asarray(res.re_center), np.asarray(res.re_radius)
-        return np.maximum(ext.e_hi - c, c - ext.e_lo) / r
+        return ext.reach(res.re_center) / np.asarray(res.re_radius)
 
     open_loop = sy.reidentify(pb, sr.DEFAULT_GAINS)
     assert reach(open_loop)[0] > 1.01           # the recorded error leaves R*_e

@@ -73,6 +73,11 @@ class LoopExtremes:
     checked: int
     residual: float
 
+    def reach(self, center):
+        """Largest ``|e - center|`` per coordinate (``-inf`` where nothing was judged)."""
+        c = np.asarray(center, float).ravel()[:len(self.e_lo)]
+        return np.maximum(self.e_hi - c, c - self.e_lo)
+
     @property
     def verified(self):
         """True when the replay was compared on some ticks and agreed within :data:`VERIFY_TOL`."""
@@ -82,10 +87,6 @@ class LoopExtremes:
         return {"ticks": int(self.ticks), "checked_ticks": int(self.checked), "residual": float(self.residual),
                 "verified": bool(self.verified), "e_lo": [float(x) for x in self.e_lo],
                 "e_hi": [float(x) for x in self.e_hi]}
-
-
-def _empty(ne):
-    return LoopExtremes(np.full(ne, np.inf), np.full(ne, -np.inf), 0, 0, 0.0)
 
 
 def loop_extremes(plant, observer, controller, y, u, x_hat, q_d, qd_d, qdd_d, segments):
@@ -133,15 +134,13 @@ def loop_extremes(plant, observer, controller, y, u, x_hat, q_d, qd_d, qdd_d, se
     cols = [names.index(n) for n in RECORDED if n in names]
     rec_cols = [RECORDED.index(names[c]) for c in cols]
     kcols = [names.index(n) for n in controller.estimate_names]
-    out = _empty(ne)
-    lo, hi, ticks, checked, resid = out.e_lo.copy(), out.e_hi.copy(), 0, 0, 0.0
+    B, D = np.hstack([observer.Bo_y, observer.Bo_u]), np.hstack([observer.Do_y, observer.Do_u])
+    lo, hi, ticks, checked, resid = np.full(ne, np.inf), np.full(ne, -np.inf), 0, 0, 0.0
     for a, b in segments:
         a, b = int(a), int(b)
         xr = reference_state(names, q_d[a:b], qd_d[a:b], qdd_d[a:b])
         if startup is not None and b - a > startup:
-            r = np.column_stack([y[a:b], u[a:b]])
-            D = np.hstack([observer.Do_y, observer.Do_u])
-            xh = lti_simulate(observer.Ao, np.hstack([observer.Bo_y, observer.Bo_u]), observer.Co, D, r)
+            xh = lti_simulate(observer.Ao, B, observer.Co, D, np.column_stack([y[a:b], u[a:b]]))
             law = qdd_d[a:b] + (xr[:, kcols] - xh[:, kcols]) @ controller.K[0]
             s = slice(startup, None)
             est_rec = x_hat[a:b][s][:, rec_cols]
@@ -243,10 +242,9 @@ def loop_rows(Kw, Kv, ne, ref_center, ref_radius, ext, scale=1.0):
     h : ndarray, (ne,)
         Coordinates without judged ticks give ``h = -inf`` (no constraint).
     """
-    c, r = (np.asarray(a, float).ravel()[:ne] for a in (ref_center, ref_radius))
+    r = np.asarray(ref_radius, float).ravel()[:ne]
     G = float(scale) * np.hstack([np.asarray(Kw, float)[:ne], np.asarray(Kv, float)[:ne]])
-    with np.errstate(invalid="ignore"):
-        reach = np.maximum(ext.e_hi[:ne] - c, c - ext.e_lo[:ne])
+    reach = ext.reach(ref_center)
     h = np.where(np.isfinite(reach), reach - r, -np.inf)
     return G, h
 
@@ -291,10 +289,8 @@ def report(problem, result):
     and how far the recorded error reaches into the result's ``R*_e`` (above 1: outside)."""
     ext = problem.recorded_loop
     d = ext.as_dict()
-    ne = len(ext.e_lo)
-    c, rad = np.asarray(result.re_center, float)[:ne], np.asarray(result.re_radius, float)[:ne]
     with np.errstate(invalid="ignore", divide="ignore"):
-        reach = np.maximum(ext.e_hi - c, c - ext.e_lo) / rad
+        reach = ext.reach(result.re_center) / np.asarray(result.re_radius, float)[:len(ext.e_lo)]
     d.update(constrained=bool(problem.loop_rows is not None), rows=int(problem.loop_rows or 0),
              reach=[float(x) if np.isfinite(x) else None for x in reach],
              inside=bool(ext.ticks > 0 and np.all(reach <= 1.0)))

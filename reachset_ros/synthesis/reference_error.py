@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ReachsetError
 from ..sets.reachability import NotStableError, radius_coefficients, reachable_subspace
-from ..systems.gains import Gains
+from ..systems.gains import is_model_gains
 
 
 class ReferenceMethod(enum.IntEnum):
@@ -675,9 +675,8 @@ def u_e_ff_for_gains(gains, joint_sets, plant):
     Otherwise the class's sound bound (:func:`class_reference_error`) for the new loop; None
     when it does not converge (refused then, too).
     """
-    rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {})
-    rc, own = rec.get("reference_class"), getattr(joint_sets, "gains", None)
-    if not rc or not own or Gains.from_model(own).model_dict() == gains.model_dict():
+    rc = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}).get("reference_class")
+    if not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets):
         return None
     obs, ctrl = gains.build(plant.dt)
     try:

@@ -24,7 +24,7 @@ from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 
 __all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff",
-           "recorded_for_other_gains",
+           "recorded_for_other_gains", "is_model_gains",
            "certified_inflation", "model_limits",
            "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS"]
 
@@ -181,6 +181,12 @@ def _describe(g):
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in g.model_dict().items())
 
 
+def is_model_gains(gains: Gains, joint_sets):
+    """Whether ``gains`` are the loop a model joint records (``JointSets.gains``; False without)."""
+    own = getattr(joint_sets, "gains", None)
+    return bool(own) and Gains.from_model(own).model_dict() == gains.model_dict()
+
+
 def recorded_for_other_gains(gains: Gains, joint_sets):
     """Why the model's recorded ``U_e,ff`` does not hold for ``gains`` ('' when it does).
 
@@ -192,15 +198,11 @@ def recorded_for_other_gains(gains: Gains, joint_sets):
     reference class) or the change is refused.
     """
     rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {})
-    own = getattr(joint_sets, "gains", None)
-    if rec.get("u_e_ff") is None or not own:
-        return ""
-    mine = Gains.from_model(own)
-    if mine.model_dict() == gains.model_dict():
+    if rec.get("u_e_ff") is None or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets):
         return ""
     return (f"U_e,ff (the reference error's input part, Appendix B) is recorded for the model's gains "
-            f"({_describe(mine)}), not for these ({_describe(gains)}), and no reference class to recompute it "
-            "is known: synthesise or re-identify for these gains")
+            f"({_describe(Gains.from_model(joint_sets.gains))}), not for these ({_describe(gains)}), and no "
+            "reference class to recompute it is known: synthesise or re-identify for these gains")
 
 
 def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: float, u_e_ff=None, plant=None):
