@@ -31,7 +31,7 @@ def main(argv=None):
     ap.add_argument("--quiet", type=float, nargs=2, default=(3.0, 8.0), metavar=("MIN", "MAX"),
                     help="fault-free stretch before each event, simulated s (uniform)")
     ap.add_argument("--train", type=float, default=40.0, help="simulated s per training recording")
-    ap.add_argument("--train-runs", type=int, default=3, help="training recordings (each a calibration fold)")
+    ap.add_argument("--train-runs", type=int, default=6, help="training recordings (each a calibration fold)")
     ap.add_argument("--burners", type=float, default=0.5, choices=(0.0, 0.5, 1.0))
     ap.add_argument("--kinds", nargs="+", default=None, help="only these event kinds")
     ap.add_argument("--sim-faults", nargs="+", default=None, help="only these simulator fault kinds")
@@ -44,7 +44,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.short:
         # seed 92: 7 of the 10 events must stop, a link loss and a sparse loss among them
-        a.events, a.quiet, a.burners, a.train = 10, (1.0, 2.0), 0.0, 20.0
+        a.events, a.quiet, a.burners, a.train, a.train_runs = 10, (1.0, 2.0), 0.0, 20.0, 3
         a.seed = SHORT_SEED if a.seed is None else a.seed
     a.seed = 1 if a.seed is None else a.seed
     events = cp.schedule(a.seed, a.events, quiet_s=tuple(a.quiet), burner_share=a.burners, kinds=a.kinds,

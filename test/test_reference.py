@@ -73,6 +73,32 @@ def test_custom_config_and_start():
     assert all(0.1 <= s.dwell <= 0.2 for s in gen.segments)
 
 
+def test_led_segments_reach_every_joints_limits():
+    """The synchronised moves leave the short-range arm_2 far below qd_max (the cause of the
+    fault campaign's false stops, docs/reliability.md); led segments reach every joint's
+    limits, keep all limits, continuous, and lead=0 draws exactly the plain generator's."""
+    plain = ReferenceConfig()
+    t, Q, QD, QDD = ReferenceGenerator(plain, seed=1).trajectory(240.0)
+    assert np.abs(QD[:, 1]).max() < 0.5 * plain.qd_max[1]
+    c = ReferenceConfig(lead=0.5)
+    for seed in (1, 2):
+        gen = ReferenceGenerator(c, seed=seed)
+        t, Q, QD, QDD = gen.trajectory(240.0)
+        np.testing.assert_allclose(np.abs(QD).max(axis=0), c.qd_max, rtol=1e-6)
+        assert np.all(np.abs(QDD).max(axis=0) >= 0.95 * c.qdd_max)
+        assert np.all(Q >= c.q_min - TOL) and np.all(Q <= c.q_max + TOL)
+        assert np.all(np.abs(QD) <= c.qd_max + TOL) and np.all(np.abs(QDD) <= c.qdd_max + TOL)
+        # the moves join: each segment starts where the one before ended
+        segs = gen.segments
+        assert all(np.array_equal(a.q1, b.q0) and a.t_end == b.t0 for a, b in zip(segs, segs[1:]))
+        # the position is continuous (|dq| <= qd_max dt per tick)
+        assert np.all(np.abs(np.diff(Q, axis=0)) <= c.qd_max * 0.004 + TOL)
+    a = ReferenceGenerator(ReferenceConfig(lead=0.0), seed=42).trajectory(60.0)[1]
+    np.testing.assert_array_equal(a, ReferenceGenerator(ReferenceConfig(), seed=42).trajectory(60.0)[1])
+    with pytest.raises(ReachsetError, match="lead"):
+        ReferenceConfig(lead=1.5)
+
+
 def test_bad_configs_are_rejected():
     with pytest.raises(ReachsetError, match="q_max must exceed"):
         ReferenceConfig(q_min=[0.0], q_max=[0.0])

@@ -51,6 +51,8 @@ RESET_PATIENCE_S = 20.0
 RELAYED = "/campaign/relayed/joint_states"
 #: resets tried before the campaign gives up on recovering
 MAX_RESETS = 6
+#: share of the reference's moves led by one joint at its full limits (training and events alike)
+REFERENCE_LEAD = 0.5
 BURNER = "while True:\n    pass\n"
 
 
@@ -146,7 +148,9 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
     common = {"joints": JOINTS, "allow_uncertified": True}
     params = {
         "sim_node": {"seed": seed, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT},
-        "reference_node": {"seed": seed},
+        # led moves: the training reaches the reference class' limits on every joint (the
+        # synchronised moves alone left arm_2 at a third of qd_max: false stops on its fast moves)
+        "reference_node": {"seed": seed, "lead": REFERENCE_LEAD},
         "observer_node": {**common, **INITIAL_GAINS},
         "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": True,
                             "robot_params": str(default_nominal_path())},

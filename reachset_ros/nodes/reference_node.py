@@ -5,7 +5,8 @@ the first sample), stamped with the measurement's stamp, so the controller pairs
 by stamp, and named with the generator's joints (the LWA-4P's, in its order), so the
 controller pairs them by name whatever the order of names on ``/joint_states``. Random
 trapezoidal / quintic point-to-point moves inside the position box with |qd_d| <= qd_max
-and |qdd_d| <= qdd_max (the paper's U_ref), reproducible from ``seed``.
+and |qdd_d| <= qdd_max (the paper's U_ref), reproducible from ``seed``; ``lead``: the share
+of moves led by one joint at its full limits (:class:`reachset_ros.sim.reference.ReferenceConfig`).
 
 ``hold`` (settable at run time): the move under way is finished and the reference then
 rests at its end point (velocity and acceleration 0) until ``hold`` is cleared; the moves
@@ -35,10 +36,15 @@ class ReferenceNode(Node):
         self.declare_parameter("qd_max", 0.7, desc("velocity limit, rad/s", 0.01, 2.0, read_only=True))
         self.declare_parameter("qdd_max", 2.0, desc("acceleration limit (U_ref), rad/s^2", 0.01, 20.0,
                                                     read_only=True))
+        self.declare_parameter("lead", 0.0, desc("share of the moves led by one joint (in turn) at its full "
+                                                 "qd_max and qdd_max, the others finishing with it: data that "
+                                                 "reaches the class' limits on every joint", 0.0, 1.0,
+                                                 read_only=True))
         self.declare_parameter("hold", False, desc("finish the move under way, then rest at its end point "
                                                    "until cleared (no new moves)"))
         cfg = ReferenceConfig(qd_max=float(self.get_parameter("qd_max").value),
-                              qdd_max=float(self.get_parameter("qdd_max").value))
+                              qdd_max=float(self.get_parameter("qdd_max").value),
+                              lead=float(self.get_parameter("lead").value))
         self.stream = ReferenceStream(ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value)))
         self.names = list(JOINT_NAMES)
         self.pub = self.create_publisher(JointReference, "reference", TICK_QOS)

@@ -15,6 +15,13 @@ with a random velocity limit in ``[min_fraction, 1] * qd_max`` and acceleration 
 ``|qd_d| <= qd_max``, ``|qdd_d| <= qdd_max`` (trapezoids have acceleration steps, which
 the paper's double-integrator plant accepts). Reproducible: the segments depend only on
 the seed, the configuration and ``q0``, not on how the trajectory is sampled.
+
+**Led segments** (``lead > 0``): the synchronised moves rarely take a joint with a short
+range to its velocity limit, because a longer move of another joint sets the segment's
+duration. A data set recorded to identify a model of the whole class must reach the class'
+limits on every joint, so a share ``lead`` of the segments is *led* by one joint (in turn):
+it moves to the far half of its range at its full ``qd_max`` and ``qdd_max``, and every
+other joint's move is shortened, if needed, to finish within the leader's duration.
 """
 from __future__ import annotations
 
@@ -73,6 +80,10 @@ class ReferenceConfig:
         Per-segment limits are drawn uniformly in ``[min_fraction, 1]`` times the limits.
     min_distance : float
         Targets closer than this to the start (max over joints) are redrawn [rad].
+    lead : float
+        Share of the segments led by one joint at its full limits (round-robin over the
+        joints; see the module docstring). 0 (default): none, and the draws of every seed
+        are those of the plain generator.
     """
 
     q_min: np.ndarray = field(default_factory=lambda: _default_box()[0])
@@ -83,6 +94,7 @@ class ReferenceConfig:
     dwell: tuple = (0.0, 0.5)
     min_fraction: float = 0.2
     min_distance: float = 0.05
+    lead: float = 0.0
 
     def __post_init__(self):
         n = np.size(self.q_min)
@@ -99,6 +111,8 @@ class ReferenceConfig:
                                 f"got {self.kinds}")
         if not (0 < self.min_fraction <= 1) or not (0 <= self.dwell[0] <= self.dwell[1]):
             raise ReachsetError("reference: need 0 < min_fraction <= 1 and 0 <= dwell[0] <= dwell[1]")
+        if not (0.0 <= self.lead <= 1.0):
+            raise ReachsetError(f"reference: lead must be in [0, 1], got {self.lead}")
 
     @property
     def n(self) -> int:
@@ -179,6 +193,13 @@ class Segment:
         return q, qd, qdd
 
 
+def _duration(D, vmax, amax, kind):
+    """Per joint, the shortest rest-to-rest move over distances ``D`` within the limits [s]."""
+    if kind == "quintic":
+        return np.maximum(QUINTIC_VEL * D / vmax, np.sqrt(QUINTIC_ACC * D / amax))
+    return np.where(D < vmax ** 2 / amax, 2 * np.sqrt(D / amax), D / vmax + vmax / amax)
+
+
 class ReferenceGenerator:
     """Random point-to-point reference ``(q_d, qd_d, qdd_d)`` (see the module docstring).
 
@@ -209,6 +230,7 @@ class ReferenceGenerator:
         self._rng = np.random.default_rng(self.seed)
         self._segments: list = []
         self._starts: list = []
+        self._led = 0                       # led segments so far (the next leader is _led % n)
 
     @property
     def segments(self) -> tuple:
@@ -230,15 +252,14 @@ class ReferenceGenerator:
         vmax = c.qd_max * rng.uniform(c.min_fraction, 1.0)
         amax = c.qdd_max * rng.uniform(c.min_fraction, 1.0)
         dwell = float(rng.uniform(*c.dwell))
+        if c.lead > 0.0 and rng.uniform() < c.lead:
+            q1, vmax, amax = self._led_move(qs, q1, vmax, amax, kind)
         d = q1 - qs
         D = np.abs(d)
+        T = float(np.max(_duration(D, vmax, amax, kind)))
         if kind == "quintic":
-            T = float(np.max(np.maximum(QUINTIC_VEL * D / vmax, np.sqrt(QUINTIC_ACC * D / amax))))
             a = v = np.zeros(c.n)
         else:
-            tri = D < vmax ** 2 / amax
-            Tj = np.where(tri, 2 * np.sqrt(D / amax), D / vmax + vmax / amax)
-            T = float(np.max(Tj))
             # each joint keeps its acceleration limit and cruises slower to finish at T
             disc = np.maximum(amax ** 2 * T ** 2 - 4 * amax * D, 0.0)
             vabs = (amax * T - np.sqrt(disc)) / 2
@@ -252,6 +273,28 @@ class ReferenceGenerator:
             v = np.where(D > 0, v, 0.0)
         seg = Segment(t0, T, dwell, np.array(qs), q1, kind, a, v)
         return seg
+
+    def _led_move(self, qs, q1, vmax, amax, kind):
+        """A led segment's target and limits: joint ``j`` (in turn) goes to the far half of
+        its range at its full limits; the others' moves are shortened to end within its
+        duration (each joint's duration grows with its distance, so a cap on the distance
+        is a cap on the duration)."""
+        c, rng = self.config, self._rng
+        j = self._led % c.n
+        self._led += 1
+        vmax, amax, q1 = vmax.copy(), amax.copy(), q1.copy()
+        vmax[j], amax[j] = c.qd_max[j], c.qdd_max[j]
+        mid = 0.5 * (c.q_min[j] + c.q_max[j])
+        q1[j] = rng.uniform(mid, c.q_max[j]) if qs[j] < mid else rng.uniform(c.q_min[j], mid)
+        T = _duration(np.abs(q1[j:j + 1] - qs[j:j + 1]), vmax[j:j + 1], amax[j:j + 1], kind)[0]
+        if kind == "quintic":
+            dmax = np.minimum(T * vmax / QUINTIC_VEL, amax * T * T / QUINTIC_ACC)
+        else:
+            dmax = np.where(T >= 2 * vmax / amax, vmax * (T - vmax / amax), amax * T * T / 4)
+        d = q1 - qs
+        dmax[j] = np.inf
+        d = np.sign(d) * np.minimum(np.abs(d), dmax * (1 - 1e-9))
+        return qs + d, vmax, amax
 
     def _segment_at(self, t: float) -> Segment:
         if t < 0:
