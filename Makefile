@@ -12,7 +12,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
 
 MSG_SRCS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
-PYTEST_ARGS ?= -q
+PYTEST_ARGS ?= -q --durations=25
 
 .PHONY: all venv test demo benchmark fuzz clean distclean
 

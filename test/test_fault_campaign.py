@@ -67,6 +67,13 @@ def test_score_counts_misses_false_stops_and_latency():
     fr = cp.Outcome(cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a"), fault_ns=0,
                     observable_ns=500_000_000, stops=[(520_000_000, 524_000_000, "violation")])
     assert cp.score([fr])["latency_ms"]["max"] == pytest.approx(24.0)
+    assert cp.score([fr])["detection_ms"]["max"] == pytest.approx(4.0)
+    # a stamp jump's stop carries the jumped-back stamp: detection counts from the fault's
+    jump = cp.Outcome(cp.Event(10, "stamp_jump", 1.0, "stop", seconds=0.3), fault_ns=1_000_000_000,
+                      stops=[(700_000_000, 1_004_000_000, "stamp_backwards")])
+    assert cp.score([jump])["detection_ms"]["max"] == pytest.approx(4.0)
+    assert s["detection_ms"]["max"] == pytest.approx(4.0)
+    assert s["stamp_latency_ms_by_kind"] and "detection and delivery" in cp.table(s)
     text = cp.table(s)
     assert "missed: " + stop[1].label() in text and text.count("false stop:") == 2
 

@@ -5,7 +5,7 @@ from a seeded schedule (:mod:`reachset_ros.sim.campaign`), every stop measured.
 observer, controller with ``wait_for_monitor``, monitor), records ``train`` s ``train_runs``
 times with the initial gains, identifies the monitor's model from those recordings with the
 inflation calibrated by cross-validation on them, each recording a fold (``reachset identify
-BAG1 BAG2 BAG3 --calibrate 3``), resets the monitor and then runs the events: for each, a fault-free stretch of
+BAG1 ... BAGn --calibrate n``), resets the monitor and then runs the events: for each, a fault-free stretch of
 monitored running, the fault, the wait for the stop, the braking it causes, and the recovery
 (faults cleared, a killed process restarted, the monitor reset, the arm tracking again for
 ``RECOVER_S`` without a stop; a stop during the recovery is counted apart and the reset
@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from reachset_msgs.msg import BrakeCommand, JointReference, SafeStop
@@ -33,6 +34,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from .. import launch
+from ..bags.references import read_references
 from ..robot.lwa4p import default_nominal_path
 from ..sim import campaign as cp
 from ..sim.simulator import DT as SIM_DT
@@ -345,6 +347,13 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 raise RuntimeError("identify: " + ((err.strip().splitlines() or ["?"])[-1]))
             info["inflation"] = json.loads(out)["inflation"]
             log(f"[campaign] monitor model identified, calibrated inflation {info['inflation']:g}")
+            # what the training covered: a motion faster than this on a joint is outside the
+            # data its sets were identified on (benchmarks/false_stop_coverage.py)
+            refs = read_references(bags)
+            info["training_fastest_qd"] = {
+                n: float(max(np.abs(r.qd).max() for r in rs)) for n, rs in sorted(refs.items())}
+            log("[campaign] training's fastest |qd_d| per joint, rad/s: " + ", ".join(
+                f"{n} {v:.3f}" for n, v in info["training_fastest_qd"].items()))
         info["model"] = str(model)
 
         def block_bag(i):

@@ -294,7 +294,11 @@ def score(outcomes, apparatus_stops=()):
         expecting none), ``either`` (tolerance-band freezes: events, stops),
         ``fault_free_minutes`` (monitored, simulated), ``latency_ms`` (p50/p99/max of the
         arrival on the simulation's clock after the fault's stamp, every stopped fault),
-        ``latency_ms_by_kind``, ``stamp_latency_ms`` (the stop's own stamp), ``wall_latency_ms``
+        ``latency_ms_by_kind``, ``stamp_latency_ms`` (the stop's own stamp: the first
+        measurement outside the model's sets, or the tick at which a data rule's allowance ran
+        out) and ``stamp_latency_ms_by_kind``, ``detection_ms`` (the stop's arrival after the later
+        of its own stamp and the fault's: the monitor's detection and the delivery, the part of
+        the latency that is the monitor's and not the fault's physics), ``wall_latency_ms``
         for killed processes, ``braking_ticks_max`` (first braking command after the stop's
         arrival at the controller, ticks; killed controllers excluded), ``misses`` and
         ``false`` (each with its event, stamps and bag).
@@ -313,11 +317,14 @@ def score(outcomes, apparatus_stops=()):
                           "bag": o.bag})
     lat = [(o.stops[0][1] - o.latency_from()) * 1e-6 for o in stopped]
     stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in stopped]
-    by_kind = {}
-    for o, x in zip(stopped, lat):
+    # a stamp jump's stop carries the jumped (earlier) stamp: its evidence is the fault's stamp
+    detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in stopped]
+    by_kind, stamp_by_kind = {}, {}
+    for o, x, y in zip(stopped, lat, stamp_lat):
         key = (o.event.fault if o.event.kind == "sim" else
                f"link {o.event.fault}" if o.event.kind == "link" else o.event.kind)
         by_kind.setdefault(key, []).append(x)
+        stamp_by_kind.setdefault(key, []).append(y)
     wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
     # braking after the stop's arrival at the controller: every stop but a killed process'
     # (after a SIGKILL the other participants' sends to its shared-memory ports can block for
@@ -347,6 +354,8 @@ def score(outcomes, apparatus_stops=()):
         "latency_ms": stats(lat),
         "latency_ms_by_kind": {k: stats(v) for k, v in sorted(by_kind.items())},
         "stamp_latency_ms": stats(stamp_lat),
+        "stamp_latency_ms_by_kind": {k: stats(v) for k, v in sorted(stamp_by_kind.items())},
+        "detection_ms": stats(detection),
         "wall_latency_ms_killed": stats(wall),
         "braking_ticks_max": max(braking) if braking else None,
         "braking_measured": len(braking),
@@ -395,6 +404,8 @@ def table(s):
         ("events with CPU burners on", str(s["burner_events"])),
         ("stop latency from the fault's stamp, ms (p50 / p99 / max)", ms(s["latency_ms"])),
         ("the stop's own stamp after the fault's, ms", ms(s["stamp_latency_ms"])),
+        ("the stop's arrival after the later of its own stamp and the fault's (detection and "
+         "delivery), ms", ms(s.get("detection_ms"))),
         ("killed process: wall time to the stop, ms", ms(s["wall_latency_ms_killed"])),
         ("braking onset after the stop's arrival, ticks (max; killed processes apart)",
          "-" if s["braking_ticks_max"] is None else f"{s['braking_ticks_max']:g} (n={s['braking_measured']})"),
@@ -405,6 +416,8 @@ def table(s):
     rows.append(("simulator steps on a stale command (with burners on)",
                  f"{s['stale_steps']} ({s['stale_steps_burners']}); by event: {s['stale_steps_by_event']}"))
     rows += [(f"  latency, {k}", ms(v)) for k, v in s["latency_ms_by_kind"].items()]
+    rows += [(f"  own stamp after the fault's, {k}", ms(v))
+             for k, v in s.get("stamp_latency_ms_by_kind", {}).items()]
     out = ["| measure | value |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
     if s.get("apparatus_stops"):
         out.append(f"\nstops while the campaign's recorder switched bags (apparatus, not scored): "
