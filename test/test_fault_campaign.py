@@ -68,6 +68,12 @@ def test_score_counts_misses_false_stops_and_latency():
                     observable_ns=500_000_000, stops=[(520_000_000, 524_000_000, "violation")])
     assert cp.score([fr])["latency_ms"]["max"] == pytest.approx(24.0)
     assert cp.score([fr])["detection_ms"]["max"] == pytest.approx(4.0)
+    # a stop after the detection window (1 s from the first motion) is a missed stop
+    late = cp.Outcome(cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a"), fault_ns=0,
+                      observable_ns=500_000_000, stops=[(1_700_000_000, 1_780_000_000, "violation")])
+    sl = cp.score([late, fr])
+    assert (sl["stops"], sl["missed_stops"]) == (1, 1) and "after the 1 s window" in sl["misses"][0]["note"]
+    assert sl["latency_ms"]["n"] == 2 and sl["latency_ms"]["max"] == pytest.approx(1280.0)
     # a stamp jump's stop carries the jumped-back stamp: detection counts from the fault's
     jump = cp.Outcome(cp.Event(10, "stamp_jump", 1.0, "stop", seconds=0.3), fault_ns=1_000_000_000,
                       stops=[(700_000_000, 1_004_000_000, "stamp_backwards")])

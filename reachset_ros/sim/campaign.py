@@ -289,11 +289,13 @@ def score(outcomes, apparatus_stops=()):
     Returns
     -------
     dict
-        ``faults_injected`` (events expecting a stop), ``stops`` (of those, stopped),
-        ``missed_stops``, ``false_stops`` (a stop in a fault-free stretch or after an event
+        ``faults_injected`` (events expecting a stop), ``stops`` (of those, stopped within
+        the event's detection window, :func:`detect_within_s`), ``missed_stops`` (no stop, or
+        one after the window), ``false_stops`` (a stop in a fault-free stretch or after an event
         expecting none), ``either`` (tolerance-band freezes: events, stops),
         ``fault_free_minutes`` (monitored, simulated), ``latency_ms`` (p50/p99/max of the
-        arrival on the simulation's clock after the fault's stamp, every stopped fault),
+        arrival on the simulation's clock after the fault's stamp, every fault whose stop
+        arrived, late ones included),
         ``latency_ms_by_kind``, ``stamp_latency_ms`` (the stop's own stamp: the first
         measurement outside the model's sets, or the tick at which a data rule's allowance ran
         out) and ``stamp_latency_ms_by_kind``, ``detection_ms`` (the stop's arrival after the later
@@ -305,8 +307,12 @@ def score(outcomes, apparatus_stops=()):
     """
     unobservable = [o for o in outcomes if o.event.expect == "stop" and o.note.startswith("unobservable")]
     faults = [o for o in outcomes if o.event.expect == "stop" and o not in unobservable]
-    stopped = [o for o in faults if o.stops]
-    missed = [o for o in faults if not o.stops]
+    arrived = [o for o in faults if o.stops]
+    # a stop that arrived after the event's detection window is a missed stop (the runner
+    # keeps whatever stop it has when it stops waiting, possibly a later one)
+    late = [o for o in arrived if o.stops[0][1] - o.latency_from() > detect_within_s(o.event) * 1e9]
+    stopped = [o for o in arrived if o not in late]
+    missed = [o for o in faults if not o.stops] + late
     false = []
     for o in outcomes:
         for s in o.quiet_stops:
@@ -315,12 +321,13 @@ def score(outcomes, apparatus_stops=()):
         if o.event.expect == "none" and o.stops:
             false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
                           "bag": o.bag})
-    lat = [(o.stops[0][1] - o.latency_from()) * 1e-6 for o in stopped]
-    stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in stopped]
+    # latencies of every stop that arrived, late ones included
+    lat = [(o.stops[0][1] - o.latency_from()) * 1e-6 for o in arrived]
+    stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in arrived]
     # a stamp jump's stop carries the jumped (earlier) stamp: its evidence is the fault's stamp
-    detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in stopped]
+    detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in arrived]
     by_kind, stamp_by_kind = {}, {}
-    for o, x, y in zip(stopped, lat, stamp_lat):
+    for o, x, y in zip(arrived, lat, stamp_lat):
         key = (o.event.fault if o.event.kind == "sim" else
                f"link {o.event.fault}" if o.event.kind == "link" else o.event.kind)
         by_kind.setdefault(key, []).append(x)
@@ -371,7 +378,10 @@ def score(outcomes, apparatus_stops=()):
         "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
         "stale_steps_by_event": {k: v for k, v in _stale_by_kind(outcomes).items() if v},
         "apparatus_stops": [list(a) for a in apparatus_stops],
-        "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag, "note": o.note} for o in missed],
+        "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag,
+                    "note": (f"stop {(o.stops[0][1] - o.latency_from()) * 1e-6:.0f} ms after the fault's stamp, "
+                             f"after the {detect_within_s(o.event):g} s window" if o in late else o.note)}
+                   for o in missed],
         "false": false,
     }
 
