@@ -1,20 +1,23 @@
 """Were a fault campaign's false stops motions its training never recorded?
 
-For every false stop in a campaign's log (``FALSE STOP in the fault-free stretch: ...``) this
-finds the stop in the block bags of the campaign's work directory and compares the violating
+For every false stop of a campaign that is a violation (from its ``campaign.json``; for a
+partial run, the log's ``FALSE STOP in the fault-free stretch: ...`` lines, found in the block
+bags by their whole reason) this compares the violating
 joint's fastest reference (``max |qd_d|`` over the 2 s before the stop) with the fastest
 reference of that joint in the training recordings (``train*``) the monitor's model was
 identified from. Reads bags only; asserts nothing.
 
 Syntax::
 
-    .venv/bin/python benchmarks/false_stop_coverage.py WORKDIR LOG
+    .venv/bin/python benchmarks/false_stop_coverage.py WORKDIR [LOG]
 
-``WORKDIR``: ``benchmarks/fault_campaign.py --workdir``; ``LOG``: its standard error.
+``WORKDIR``: ``benchmarks/fault_campaign.py --workdir``; ``LOG``: its standard error (needed
+only when the run did not finish).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from pathlib import Path
 
@@ -34,13 +37,33 @@ def _fastest(refs, joint, lo=None, hi=None):
     return float(qd[w].max()) if np.any(w) else float("nan")
 
 
+def _false_stops(workdir, log):
+    """``[(bag, stamp_ns, reason)]`` of the campaign's violation false stops: from
+    ``campaign.json``'s score when the run finished, else from the log (a partial run), each
+    found in the block bags by its whole reason."""
+    res = workdir / "campaign.json"
+    if res.exists():
+        return [(Path(f["bag"]).name, int(f["stop"][0]), f["stop"][2].split("violation: ", 1)[1])
+                for f in json.loads(res.read_text())["score"]["false"] if f["stop"][2].startswith("violation: ")]
+    if log is None:
+        raise SystemExit(f"false_stop_coverage: error: {res} does not exist; give the campaign's LOG")
+    tag = "FALSE STOP in the fault-free stretch: violation: "
+    false = [ln.split(tag, 1)[1].strip() for ln in log.read_text().splitlines() if tag in ln]
+    out = []
+    for blk in sorted(b for b in workdir.glob("block*") if (b / "metadata.yaml").exists()):
+        for _, _, m in read_messages([blk], ["/safe_stop"]):
+            if m.active and m.kind == "violation" and m.reason in false:
+                out.append((blk.name, header_stamp_ns(m), m.reason))
+                false.remove(m.reason)
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("workdir", type=Path)
-    ap.add_argument("log", type=Path)
+    ap.add_argument("log", type=Path, nargs="?", default=None)
     args = ap.parse_args(argv)
-    false = [ln.split("FALSE STOP in the fault-free stretch: violation: ", 1)[1].strip()
-             for ln in args.log.read_text().splitlines() if "FALSE STOP in the fault-free stretch: violation: " in ln]
+    false = _false_stops(args.workdir, args.log)
     train = {}
     for b in sorted(args.workdir.glob("train*")):
         refs = read_references([b], None)
@@ -48,21 +71,15 @@ def main(argv=None):
             train[n] = max(train.get(n, 0.0), _fastest(refs, n))
     print("training recordings' fastest |qd_d| per joint [rad/s]: "
           + ", ".join(f"{n} {v:.3f}" for n, v in sorted(train.items())))
-    print(f"false stops in the log: {len(false)}")
-    for blk in sorted(b for b in args.workdir.glob("block*") if (b / "metadata.yaml").exists()):
-        stops = {}
-        for _, _, m in read_messages([blk], ["/safe_stop"]):
-            if m.active and m.kind == "violation":
-                stops.setdefault(m.reason, header_stamp_ns(m))
-        hits = [(r, s) for r, s in stops.items() if any(f.startswith(r[:60]) or r.startswith(f[:60]) for f in false)]
-        if not hits:
-            continue
-        refs = read_references([blk], None)
-        for reason, stamp in hits:
-            joint = re.search(r"joint (\S+) left", reason).group(1)
-            fast = _fastest(refs, joint, stamp - BEFORE_NS, stamp)
-            print(f"| {blk.name} | {reason[:80]} | {joint} | {fast:.3f} | {train.get(joint, float('nan')):.3f} |")
-
+    print(f"false stops (violations): {len(false)}")
+    print("| block | false stop | joint | fastest reference in the 2 s before [rad/s] | "
+          "fastest reference in the training [rad/s] |")
+    print("|---|---|---|---|---|")
+    for name, stamp, reason in false:
+        refs = read_references([args.workdir / name], None)
+        joint = re.search(r"joint (\S+) left", reason).group(1)
+        fast = _fastest(refs, joint, stamp - BEFORE_NS, stamp)
+        print(f"| {name} | {reason[:80]} | {joint} | {fast:.3f} | {train.get(joint, float('nan')):.3f} |")
 
 if __name__ == "__main__":
     main()
