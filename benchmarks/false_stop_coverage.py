@@ -5,7 +5,9 @@ partial run, the log's ``FALSE STOP in the fault-free stretch: ...`` lines, foun
 bags by their whole reason) this compares the violating
 joint's fastest reference (``max |qd_d|`` over the 2 s before the stop) with the fastest
 reference of that joint in the training recordings (``train*``) the monitor's model was
-identified from. Reads bags only; asserts nothing.
+identified from, and the joint's largest tracking error |q - q_d| in the second before the stop
+with the largest in the training where |qd_d| > 0.6 rad/s (and how long the training was
+that fast). Reads bags only; asserts nothing.
 
 Syntax::
 
@@ -25,9 +27,19 @@ import numpy as np
 
 from reachset_ros.bags.messages import header_stamp_ns
 from reachset_ros.bags.references import read_references
-from reachset_ros.bags.series import read_messages
+from reachset_ros.bags.series import read_messages, read_topic_rows
 
 BEFORE_NS = 2_000_000_000
+#: "fast" for the tracking-error comparison: |qd_d| above this share of the class' 0.7 rad/s
+FAST_QD = 0.6
+
+
+def _tracking(bag, joint):
+    """``(stamps, |q - q_d|, |qd_d|)`` of a joint at the stamps both topics have."""
+    js = read_topic_rows([bag], "/joint_states", ("position",), [joint])[joint]
+    ref = read_topic_rows([bag], "/reference", ("position", "velocity"), [joint])[joint]
+    st, a, b = np.intersect1d(js[0], ref[0], return_indices=True)
+    return st, np.abs(js[1][a, 0] - ref[1][b, 0]), np.abs(ref[1][b, 1])
 
 
 def _fastest(refs, joint, lo=None, hi=None):
@@ -80,6 +92,22 @@ def main(argv=None):
         joint = re.search(r"joint (\S+) left", reason).group(1)
         fast = _fastest(refs, joint, stamp - BEFORE_NS, stamp)
         print(f"| {name} | {reason[:80]} | {joint} | {fast:.3f} | {train.get(joint, float('nan')):.3f} |")
+    # the tracking error before each false stop against the training's at fast moves
+    print(f"\n| joint | training: s with abs(qd_d) > {FAST_QD} | training: max abs(q - q_d) there [rad] | "
+          "false stop | max abs(q - q_d) in the 1 s before [rad] |")
+    print("|---|---|---|---|---|")
+    for joint in sorted({re.search(r"joint (\S+) left", r).group(1) for _, _, r in false}):
+        err, n = 0.0, 0
+        for b in sorted(args.workdir.glob("train*")):
+            _, e, v = _tracking(b, joint)
+            f = v > FAST_QD
+            n += int(f.sum())
+            err = max(err, float(e[f].max()) if f.any() else 0.0)
+        for name, stamp, reason in false:
+            if f"joint {joint} left" in reason:
+                st, e, _ = _tracking(args.workdir / name, joint)
+                w = (st > stamp - 1_000_000_000) & (st <= stamp)
+                print(f"| {joint} | {n * 0.004:.1f} | {err:.5f} | {name} | {float(e[w].max()):.5f} |")
 
 if __name__ == "__main__":
     main()
