@@ -34,12 +34,13 @@ BEFORE_NS = 2_000_000_000
 FAST_QD = 0.6
 
 
-def _tracking(bag, joint):
-    """``(stamps, |q - q_d|, |qd_d|)`` of a joint at the stamps both topics have."""
+def _tracking(bag, refs, joint):
+    """``(stamps, |q - q_d|, |qd_d|)`` of a joint at the stamps both ``/joint_states`` and its
+    references (``read_references`` of ``bag``, already read) have."""
     js = read_topic_rows([bag], "/joint_states", ("position",), [joint])[joint]
-    ref = read_topic_rows([bag], "/reference", ("position", "velocity"), [joint])[joint]
-    st, a, b = np.intersect1d(js[0], ref[0], return_indices=True)
-    return st, np.abs(js[1][a, 0] - ref[1][b, 0]), np.abs(ref[1][b, 1])
+    rs, rq, rqd = (np.concatenate([getattr(r, f) for r in refs[joint]]) for f in ("stamps", "q", "qd"))
+    st, a, b = np.intersect1d(js[0], rs, return_indices=True)
+    return st, np.abs(js[1][a, 0] - rq[b]), np.abs(rqd[b])
 
 
 def _fastest(refs, joint, lo=None, hi=None):
@@ -76,9 +77,11 @@ def main(argv=None):
     ap.add_argument("log", type=Path, nargs="?", default=None)
     args = ap.parse_args(argv)
     false = _false_stops(args.workdir, args.log)
+    # each bag's references read once: {bag: {joint: [Reference, ...]}}
+    training = {b: read_references([b], None) for b in sorted(args.workdir.glob("train*"))}
+    blocks = {args.workdir / name: read_references([args.workdir / name], None) for name, _, _ in false}
     train = {}
-    for b in sorted(args.workdir.glob("train*")):
-        refs = read_references([b], None)
+    for refs in training.values():
         for n in refs:
             train[n] = max(train.get(n, 0.0), _fastest(refs, n))
     print("training recordings' fastest |qd_d| per joint [rad/s]: "
@@ -88,9 +91,8 @@ def main(argv=None):
           "fastest reference in the training [rad/s] |")
     print("|---|---|---|---|---|")
     for name, stamp, reason in false:
-        refs = read_references([args.workdir / name], None)
         joint = re.search(r"joint (\S+) left", reason).group(1)
-        fast = _fastest(refs, joint, stamp - BEFORE_NS, stamp)
+        fast = _fastest(blocks[args.workdir / name], joint, stamp - BEFORE_NS, stamp)
         print(f"| {name} | {reason[:80]} | {joint} | {fast:.3f} | {train.get(joint, float('nan')):.3f} |")
     # the tracking error before each false stop against the training's at fast moves
     print(f"\n| joint | training: s with abs(qd_d) > {FAST_QD} | training: max abs(q - q_d) there [rad] | "
@@ -98,16 +100,17 @@ def main(argv=None):
     print("|---|---|---|---|---|")
     for joint in sorted({re.search(r"joint (\S+) left", r).group(1) for _, _, r in false}):
         err, n = 0.0, 0
-        for b in sorted(args.workdir.glob("train*")):
-            _, e, v = _tracking(b, joint)
+        for b, refs in training.items():
+            _, e, v = _tracking(b, refs, joint)
             f = v > FAST_QD
             n += int(f.sum())
             err = max(err, float(e[f].max()) if f.any() else 0.0)
         for name, stamp, reason in false:
             if f"joint {joint} left" in reason:
-                st, e, _ = _tracking(args.workdir / name, joint)
+                st, e, _ = _tracking(args.workdir / name, blocks[args.workdir / name], joint)
                 w = (st > stamp - 1_000_000_000) & (st <= stamp)
                 print(f"| {joint} | {n * 0.004:.1f} | {err:.5f} | {name} | {float(e[w].max()):.5f} |")
+
 
 if __name__ == "__main__":
     main()

@@ -310,7 +310,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 mine = [b for b in lis.brakes[nb:] if b[1] > 0]
                 if mine:
                     o.braking_ticks = (mine[0][0] - mine[0][1]) / (SIM_DT * 1e9)   # in the loop's ticks
-            after = (o.stops[0][1] - o.latency_from()) * 1e-6
+            after = o.latency_ns() * 1e-6
             log(f"[campaign]   stop {o.stops[0][2][:140]!r}: {after:.1f} ms after the "
                 f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
                 f"{o.braking_ticks} ticks after its arrival")

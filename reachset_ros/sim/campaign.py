@@ -152,6 +152,10 @@ class Outcome:
         """The stamp latencies count from: the fault's, or for a frozen sensor the first
         motion of its joint's reference after it (the fault is not observable before)."""
         return self.observable_ns or self.fault_ns
+
+    def latency_ns(self):
+        """The first stop's arrival after :meth:`latency_from` (needs a stop)."""
+        return self.stops[0][1] - self.latency_from()
     bag: str = ""                     # the bag holding the event
     note: str = ""
 
@@ -310,7 +314,7 @@ def score(outcomes, apparatus_stops=()):
     arrived = [o for o in faults if o.stops]
     # a stop that arrived after the event's detection window is a missed stop (the runner
     # keeps whatever stop it has when it stops waiting, possibly a later one)
-    late = [o for o in arrived if o.stops[0][1] - o.latency_from() > detect_within_s(o.event) * 1e9]
+    late = [o for o in arrived if o.latency_ns() > detect_within_s(o.event) * 1e9]
     stopped = [o for o in arrived if o not in late]
     missed = [o for o in faults if not o.stops] + late
     false = []
@@ -322,7 +326,7 @@ def score(outcomes, apparatus_stops=()):
             false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
                           "bag": o.bag})
     # latencies of every stop that arrived, late ones included
-    lat = [(o.stops[0][1] - o.latency_from()) * 1e-6 for o in arrived]
+    lat = [o.latency_ns() * 1e-6 for o in arrived]
     stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in arrived]
     # a stamp jump's stop carries the jumped (earlier) stamp: its evidence is the fault's stamp
     detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in arrived]
@@ -379,7 +383,7 @@ def score(outcomes, apparatus_stops=()):
         "stale_steps_by_event": {k: v for k, v in _stale_by_kind(outcomes).items() if v},
         "apparatus_stops": [list(a) for a in apparatus_stops],
         "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag,
-                    "note": (f"stop {(o.stops[0][1] - o.latency_from()) * 1e-6:.0f} ms after the fault's stamp, "
+                    "note": (f"stop {o.latency_ns() * 1e-6:.0f} ms after the fault's stamp, "
                              f"after the {detect_within_s(o.event):g} s window" if o in late else o.note)}
                    for o in missed],
         "false": false,
