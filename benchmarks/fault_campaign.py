@@ -32,6 +32,9 @@ def main(argv=None):
                     help="fault-free stretch before each event, simulated s (uniform)")
     ap.add_argument("--train", type=float, default=40.0, help="simulated s per training recording")
     ap.add_argument("--train-runs", type=int, default=6, help="training recordings (each a calibration fold)")
+    ap.add_argument("--calibrate-margin", type=int, default=1, metavar="N",
+                    help="the model's inflation N grid steps above the cross-validated one (identify "
+                         "--calibrate-margin; default 1: the run is far longer than a fold; --short: 0)")
     ap.add_argument("--burners", type=float, default=0.5, choices=(0.0, 0.5, 1.0))
     ap.add_argument("--kinds", nargs="+", default=None, help="only these event kinds")
     ap.add_argument("--sim-faults", nargs="+", default=None, help="only these simulator fault kinds")
@@ -45,6 +48,7 @@ def main(argv=None):
     if a.short:
         # seed 92: 7 of the 10 events must stop, a link loss and a sparse loss among them
         a.events, a.quiet, a.burners, a.train, a.train_runs = 10, (1.0, 2.0), 0.0, 20.0, 3
+        a.calibrate_margin = 0
         a.seed = SHORT_SEED if a.seed is None else a.seed
     a.seed = 1 if a.seed is None else a.seed
     events = cp.schedule(a.seed, a.events, quiet_s=tuple(a.quiet), burner_share=a.burners, kinds=a.kinds,
@@ -55,7 +59,7 @@ def main(argv=None):
     os.environ["ROS_DOMAIN_ID"] = str(pick_domain_id())
     print(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} workdir {work}", file=sys.stderr, flush=True)
     outcomes, info = run_campaign(work, events, seed=a.seed, train=a.train, model=a.model,
-                                  train_runs=a.train_runs,
+                                  train_runs=a.train_runs, calibrate_margin=a.calibrate_margin,
                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     score = cp.score(outcomes, info.get("apparatus_stops", ()))
     (work / "campaign.json").write_text(json.dumps({"info": info, "score": score,

@@ -151,6 +151,12 @@ class Bus:
 
     wait = staticmethod(wait_until)
 
+    def ref_subscribers(self):
+        """Subscriptions to /reference other than a monitor's (the monitor reads it for its
+        stuck-sensor rule): the controllers, the count the tests wait for."""
+        return sum(1 for i in self.caller.get_subscriptions_info_by_topic("/reference")
+                   if not i.node_name.startswith("monitor"))
+
     def active_stops(self):
         return [s for s in list(self.stops) if s.active]
 

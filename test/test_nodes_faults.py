@@ -259,9 +259,11 @@ def test_core_stream_that_cannot_form_the_test_cases_is_a_coverage_fault(model, 
     """A stream whose period is not the model's 4 ms (125 Hz: every step a gap; 300 Hz: no
     gap, the wrong time grid), or whose losses keep every test case short of k*, ends in a
     ``coverage`` fault within the missing-data limit (after the warm-up that the checks
-    need) that names the measured period; no tick at which nothing was checked is conformant."""
+    need) that names the measured period; no tick at which nothing was checked is conformant.
+    The lossy-link rule is off here (``gap_window`` 0): these are the rules that hold
+    without it (it is tested below)."""
     mm = 25                                        # max_missing_ticks, the default
-    core = MonitorCore(mdl.load(model))
+    core = MonitorCore(mdl.load(model), gap_window=0)
     n = 400
     Y, U = stream(n, seed=4)
     base = stamps(3 * n)[0]
@@ -296,6 +298,105 @@ def test_core_stream_that_cannot_form_the_test_cases_is_a_coverage_fault(model, 
         assert late <= (HISTORY + HORIZON + mm) * DT_NS + 2 * DT_NS, late
         assert f"no test case reached the horizon k*={HORIZON}" in first.reason, first.reason
         assert "longest step checked 3 of 25" in first.reason and "measured stream period 4 ms" in first.reason
+
+
+@pytest.mark.parametrize("case", ["half_lost", "every_8th_lost", "125Hz", "one_in_200_lost"])
+def test_core_samples_lost_again_within_the_gap_window_is_a_coverage_fault(model, case):
+    """The lossy-link rule (``gap_window``, 25 ticks by default): samples lost again within
+    25 ticks of the previous loss end in a ``coverage`` fault at the second loss, where the
+    horizon rule alone waits for the warm-up, k* and the missing-data limit (the fault
+    campaign's link loss: 1.04 s); one loss in 200 ticks is no fault."""
+    core = MonitorCore(mdl.load(model))
+    n = 600
+    Y, U = stream(n, seed=6)
+    base = stamps(3 * n)[0]
+    step = 2 * DT_NS if case == "125Hz" else DT_NS
+    ts = [base + k * step for k in range(n)]
+    rng = np.random.default_rng(3)
+    lost = {"half_lost": {k for k in range(100, n) if rng.random() < 0.5},
+            "every_8th_lost": set(range(107, n, 8)), "one_in_200_lost": set(range(150, n, 200))}.get(case, set())
+    ev = feed(core, ts, Y, U, drop_y=lost, drop_u=lost)
+    f = faults_of(ev)
+    if case == "one_in_200_lost":
+        assert not f and len(ticks_of(ev)) == n - len(lost)
+        return
+    assert f and f[0].kind == "coverage", f
+    losses = sorted(lost) or [0, 1]       # 125 Hz: the steps into ticks 1 and 2 are gaps
+    # the tick after the second loss (runs of lost samples count once: a gap is one stamp step)
+    gaps = [k for k in losses if k - 1 not in lost]
+    second = next(k for k in range(gaps[1] + 1, n) if k not in lost)
+    assert f[0].stamp == ts[second], (f[0].stamp - ts[0], ts[second] - ts[0])
+    assert "samples lost again" in f[0].reason and "25-tick window" in f[0].reason, f[0].reason
+    if case == "125Hz":
+        assert "measured stream period 8 ms" in f[0].reason, f[0].reason
+    # the same stream without the rule: the horizon rule, much later
+    old = faults_of(feed(MonitorCore(mdl.load(model), gap_window=0), ts, Y, U, drop_y=lost, drop_u=lost))
+    assert not old or old[0].stamp - ts[second] >= HISTORY * DT_NS, (old[0].stamp - ts[0], f[0].stamp - ts[0])
+
+
+def feed_with_reference(core, ts, Y, U, qd, refs=True):
+    """Feed ticks as the running system does: /joint_states, then /reference (the reference
+    node answers each sample, stamped with its stamp), then /plant_input."""
+    ev = []
+    for k, t in enumerate(ts):
+        ev += core.add_y(t, JOINTS, list(Y[k]))
+        if refs:
+            core.add_reference(t, JOINTS[::-1], list(qd[k][::-1]))     # any order of names
+        ev += core.add_u(t, JOINTS, list(U[k]))
+    return ev
+
+
+@pytest.mark.parametrize("case", ["moving", "at_rest", "no_reference", "slow", "off"])
+def test_core_a_reading_repeated_while_the_reference_moves_is_a_stuck_sensor(model, case):
+    """The stuck-sensor rule (``stuck_ticks`` 5, ``stuck_speed`` 0.05 rad/s): joint 2's
+    reading frozen at tick 300 while its reference moves at 0.1 rad/s is an
+    ``invalid_sample`` fault at the fifth repeat (20 ms), long before the sets see it (the
+    stream's sets are wide: no violation in the 200 ticks after); the same readings while
+    the reference rests (a quantized encoder at rest repeats itself) or moves slower than
+    0.05 rad/s, without any /reference, or with the rule off are no fault."""
+    kw = {"stuck_ticks": 0} if case == "off" else {}
+    core = MonitorCore(mdl.load(model), **kw)
+    n = 500
+    Y, U = stream(n, seed=7)
+    Y[300:, 1] = Y[300, 1]                                     # the sensor freezes
+    speed = {"at_rest": 0.0, "slow": 0.049}.get(case, 0.1)
+    qd = np.tile([0.3, speed], (n, 1))
+    ts = stamps(n)
+    ev = feed_with_reference(core, ts, Y, U, qd, refs=case != "no_reference")
+    f = faults_of(ev)
+    if case != "moving":
+        assert not [e for e in f if "stuck" in e.reason], f
+        if case == "no_reference":
+            assert core.stuck.unreferenced == n
+        return
+    assert f and f[0].kind == "invalid_sample" and f[0].joint == JOINTS[1], f
+    assert f[0].stamp == ts[305], (f[0].stamp - ts[300]) / DT_NS
+    assert "repeated 5 times in a row (20 ms)" in f[0].reason and "stuck sensor" in f[0].reason, f[0].reason
+    # joint 1's reading never repeats: the fault names joint 2 only, and the sets saw nothing
+    assert all(e.joint == JOINTS[1] for e in f)
+    assert not [e for e in ticks_of(ev) if "violation" in e.result["status"]]
+
+
+def test_core_stuck_rule_needs_every_tick_referenced_and_no_gap(model):
+    """A run of repeats broken by a gap starts anew, and a tick whose reference is missing is
+    not established: the fault comes only once 5 repeats are all referenced."""
+    core = MonitorCore(mdl.load(model))
+    n = 400
+    Y, U = stream(n, seed=8)
+    Y[200:, 0] = Y[200, 0]
+    qd = np.tile([0.2, 0.2], (n, 1))
+    ts = stamps(n)
+    ev = []
+    for k, t in enumerate(ts):
+        if k == 203:
+            continue                                       # a lost tick: the run starts again at 204
+        ev += core.add_y(t, JOINTS, list(Y[k]))
+        if k != 207:                                       # this tick's reference is lost
+            core.add_reference(t, JOINTS, list(qd[k]))
+        ev += core.add_u(t, JOINTS, list(U[k]))
+    f = [e for e in faults_of(ev) if "stuck" in e.reason]
+    # repeats from 205 on (204 follows the gap); 5 referenced repeats in a row: 208..213
+    assert f and f[0].stamp == ts[213], (f[0].stamp - ts[200]) / DT_NS
 
 
 def test_core_a_single_gap_is_no_coverage_fault(model):
@@ -451,6 +552,29 @@ class TestMonitorNode:
         stop = bus.active_stops()[0]
         assert (stop.kind, stop.joint, stamp_ns(stop.header.stamp)) == ("violation", JOINTS[0], ts[60]), stop
         assert stop.step >= 1 and stop.test_case_start_ns == ts[60] - stop.step * DT_NS, stop
+
+    def test_a_stuck_sensor_while_the_reference_moves_latches_a_stop(self, bus, mon):
+        """The stuck-sensor rule over DDS: /joint_states, /reference and /plant_input as the
+        running system publishes them; joint 2's reading frozen at tick 60 while its reference
+        moves at 0.1 rad/s latches an ``invalid_sample`` stop naming the joint at its fifth
+        repeat (a reference that arrives after its tick was processed is used at the next
+        tick, hence up to two ticks later); nothing stops while the readings change."""
+        Y, U = stream(120, seed=12)
+        Y[60:, 1] = Y[60, 1]
+        ts = stamps(120)
+        for k, t in enumerate(ts):
+            bus.send_y(t, JOINTS, Y[k])
+            r = JointReference(name=JOINTS, position=[0.0, 0.0], velocity=[0.3, 0.1], acceleration=[0.0, 0.0])
+            to_stamp(r.header.stamp, t)
+            bus.ref.publish(r)
+            bus.send_u(t, JOINTS, U[k])
+            time.sleep(0.002)
+        assert bus.wait(lambda: bus.active_stops())
+        stop = bus.active_stops()[0]
+        assert (stop.kind, stop.joint) == ("invalid_sample", JOINTS[1]), stop
+        assert "stuck sensor" in stop.reason and "repeated" in stop.reason, stop.reason
+        assert ts[65] <= stamp_ns(stop.header.stamp) <= ts[67], (stamp_ns(stop.header.stamp) - ts[60]) / DT_NS
+        assert not [s for s in bus.statuses(ts[:60]) if not s.conformant and s.active_test_cases]
 
     def test_extra_names_are_ignored_and_counted(self, bus, mon):
         Y, U = stream(50, seed=2)
@@ -610,8 +734,10 @@ class TestMonitorNode:
     def test_stream_at_the_wrong_period_is_a_coverage_stop(self, bus, mon):
         """/joint_states and /plant_input at 125 Hz for a 4 ms model: every step is a gap, so
         nothing is ever checked. No status says conformant; a latched safe stop of kind
-        ``coverage`` names the measured period, within the missing-data limit after the
-        warm-up; /diagnostics says nothing was checked."""
+        ``coverage`` names the measured period, at the second step (the lossy-link rule:
+        samples lost again within ``gap_window`` ticks; without it, within the missing-data
+        limit after the warm-up, as the core's test checks); /diagnostics says nothing was
+        checked."""
         proc, _, _ = mon
         ok, why = bus.set_params("monitor_node", {"max_missing_ticks": 50})   # 200 ms: no watchdog stop on a stall
         assert ok, why
@@ -627,9 +753,9 @@ class TestMonitorNode:
         assert bus.wait(lambda: bus.active_stops())
         stop = bus.active_stops()[0]
         assert stop.kind == "coverage" and "measured stream period 8 ms" in stop.reason, stop
-        assert "nothing checked" in stop.reason and "dt of 4 ms" in stop.reason, stop.reason
+        assert "samples lost again" in stop.reason and "dt of 4 ms" in stop.reason, stop.reason
         at = stamp_ns(stop.header.stamp)
-        assert at - ts[0] <= (HISTORY + 50) * DT_NS + 2 * DT_NS, (at - ts[0]) / 1e6
+        assert at == ts[2], (at - ts[0]) / 1e6
         assert bus.wait(lambda: bus.statuses([ts[0], at]) and stamp_ns(bus.statuses([ts[0], at])[-1].header.stamp) == at)
         st = bus.statuses(ts)
         assert st and not any(s.conformant for s in st), [s.conformant for s in st]
@@ -783,7 +909,7 @@ def controller(bus, tmp_path_factory):
     model = write_model(d / "m.yaml")
     proc = start_controller(d, model)
     try:
-        assert bus.wait(lambda: bus.est.get_subscription_count() and bus.ref.get_subscription_count()
+        assert bus.wait(lambda: bus.est.get_subscription_count() and bus.ref_subscribers()
                         and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
         yield proc, model, d
     finally:
@@ -984,7 +1110,7 @@ class TestAbsurdCommand:
         bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
                                                 QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
         try:
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
             time.sleep(0.5)
             bus.clear()
@@ -1045,13 +1171,13 @@ class TestWaitForMonitor:
     def test_controller_holds_until_it_knows_the_stop_state(self, bus, tmp_path):
         """With ``wait_for_monitor`` a (re)started controller brakes and holds until the first
         /safe_stop message tells it whether a stop is latched; an inactive one releases it."""
-        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
         bus.clear()
         qd = np.array([0.5, -0.5])
         ctl = start_controller(tmp_path, wait_for_monitor=True)
         pub = None
         try:
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
             time.sleep(1.0)
             got = drive(bus, stamps(10), qd=qd)
@@ -1099,11 +1225,11 @@ class TestSafeStopLatch:
             assert seen
 
         # the controller of the previous class is gone from the graph
-        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
         a = start_controller(tmp_path / "a", wait_for_monitor=True)
         b = None
         try:
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), a.log.read_text()
             # wait_for_monitor: it brakes until the monitor's latched state reaches it
             settle(track, before=(brake,))
@@ -1124,9 +1250,9 @@ class TestSafeStopLatch:
             # the controller restarts: the new one (waiting for the monitor's state, as it
             # should on a robot) brakes from its first output on
             launch.stop([a])
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
             b = start_controller(tmp_path / "b", wait_for_monitor=True)
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), b.log.read_text()
             assert bus.wait(lambda: len(bus.caller.get_subscriptions_info_by_topic("/safe_stop")) >= 2, 15)
             time.sleep(1.0)
@@ -1163,14 +1289,14 @@ class TestMonitorLost:
         stays in the DDS graph until its participant lease ends and would confuse later tests.)"""
         qd = np.array([0.5, -0.5])
         track, brake = tracking_law(10.0, 1.0, qd=qd), braking_law(Q_TEST, qd, np.array([26.0, 26.0]))
-        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref.get_subscription_count() == 0)
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
         path = write_model(tmp_path / "m.yaml")
         mon = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
                                             "reset_clean_ticks": 0, "window_dir": str(tmp_path / "w")}, tmp_path)
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True)
         pub = None
         try:
-            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref.get_subscription_count() == 1,
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 30), ctl.log.read_text()
             os.kill(mon.proc.pid, signal.SIGSTOP)

@@ -91,10 +91,26 @@ def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_ne
             if below and check(plant, thm, est, js.xi(below[-1]), s.y, s.u, s.segments, H).violations > 0:
                 needed[n] = True
     assert all(needed.values()), (infl, needed)
-    for bad in (["--calibrate", "1"], ["--calibrate", "3", "--inflation", "0.1"]):
+    # --calibrate-margin 1: the same folds, the grid value one step above stored in the model
+    m1 = cli("identify", tmp_path / "all", "--horizon", H, "--calibrate", K, "--calibrate-margin", 1,
+             "--out", tmp_path / "m1.yaml", "--json")
+    assert m1["calibrated_inflation"] == ident["inflation"]
+    assert m1["inflation"] == min(g for g in grid if g > ident["inflation"]), (m1["inflation"], ident["inflation"])
+    stored = yaml.safe_load((tmp_path / "m1.yaml").read_text())
+    assert stored["inflation"] == m1["inflation"]
+    for bad in (["--calibrate", "1"], ["--calibrate", "3", "--inflation", "0.1"], ["--calibrate-margin", "1"],
+                ["--calibrate", "3", "--calibrate-margin", "-1"]):
         p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", str(tmp_path / "all"), *bad],
                            capture_output=True, text=True)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "--calibrate" in p.stderr
+
+
+def test_calibrate_margin_steps_along_the_grid():
+    from reachset_ros.commands.identify import calibrate_margin
+    grid = [0.0, 0.1, 0.2, 0.5, 1.0]
+    assert calibrate_margin(0.2, grid, 1) == 0.5 and calibrate_margin(0.2, grid, 2) == 1.0
+    assert calibrate_margin(0.0, grid, 1) == 0.1
+    assert calibrate_margin(0.5, grid, 5) == 1.0 and calibrate_margin(1.0, grid, 1) == 1.0   # the grid's end
 
 
 def test_a_single_recording_is_split_into_blocks_for_the_folds(lwa4p_dir):

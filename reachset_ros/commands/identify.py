@@ -91,8 +91,28 @@ def add_arguments(p):
                         "runs: stretches of consecutive stamps); per joint the largest over the folds of the "
                         "smallest --inflation-grid value at which the fold is conformant with sets identified on "
                         "the other folds; the model stores the largest over the joints")
+    p.add_argument("--calibrate-margin", type=int, default=0, metavar="N",
+                   help="with --calibrate: store the --inflation-grid value N steps above the cross-validated "
+                        "one (default 0). The folds calibrate for data as long as a fold; a run many folds long "
+                        "sees more (docs/reliability.md, run-length margin)")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
                    help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
+
+
+def calibrate_margin(calibrated, grid, steps):
+    """The inflation ``steps`` grid values above the cross-validated one (``--calibrate-margin``).
+
+    Cross-validation (:func:`reachset_ros.conformance.calibration.cross_validate`) finds the
+    inflation that the worst of K held-out folds needed. A monitored run M folds long is M
+    more draws of the same kind: under exchangeability the chance that all of them stay within
+    the worst of the K folds is K / (K + M) (for the fault campaign's 6 folds of 40 s and a
+    48-min run, 8 %), so a long run needs a margin that the folds cannot measure. This is a
+    chosen margin, not a calibrated one: above the grid's largest value the largest is kept
+    and the caller is told so by the returned value equalling it.
+    """
+    values = sorted({0.0, *map(float, grid)})
+    above = [v for v in values if v > calibrated]
+    return above[min(steps, len(above)) - 1] if above else values[-1]
 
 
 def identify_series(plant, est, series, horizon, centers="zero", alpha_lower=None, thm=None,
@@ -200,6 +220,11 @@ def run(args):
             raise ReachsetError(f"--calibrate needs K >= 2 folds, got {args.calibrate}")
         if args.method == "corollary1":
             raise ReachsetError("--calibrate works with --method theorem1 only")
+    if args.calibrate_margin != 0:
+        if args.calibrate is None:
+            raise ReachsetError("--calibrate-margin needs --calibrate")
+        if args.calibrate_margin < 0:
+            raise ReachsetError(f"--calibrate-margin must be >= 0 grid steps, got {args.calibrate_margin}")
     if args.inflation is not None:
         if args.validate is not None:
             raise ReachsetError("--inflation and --validate exclude each other (--validate calibrates the inflation)")
@@ -252,10 +277,14 @@ def run(args):
         for name, c in calib.items():
             js[name]["inflation"] = c["inflation"]
             js[name]["calibration"] = c
-        inflation = max(c["inflation"] for c in calib.values())
+        inflation = calibrated = max(c["inflation"] for c in calib.values())
+        if args.calibrate_margin:
+            inflation = calibrate_margin(calibrated, grid, args.calibrate_margin)
     result = {"inflation": inflation, "joints": js, "data": report.as_dict(), "cost": args.cost, "method": args.method,
               "horizon": args.horizon, "minimum_horizon": k_min, "horizon_below_minimum": weak,
               "initial_state_set": bool(args.initial_state_set)}
+    if calib is not None:
+        result["calibrated_inflation"] = calibrated
     if vseries is not None:
         inflation, val = validate(plant, est, args.horizon, thm, joints, vseries, grid, args.fault_accel)
         for name, v in val.items():
@@ -272,6 +301,7 @@ def run(args):
         if calib is not None:
             prov["calibration"] = {"folds": args.calibrate, "inflation_grid": grid,
                                    "inflation": {n: c["inflation"] for n, c in calib.items()},
+                                   "margin_steps": args.calibrate_margin, "model_inflation": inflation,
                                    "flagged": [n for n, c in calib.items() if c["flagged"]]}
         m = mdl.ConformanceModel(plant, {"kind": "lwa4p_joint", "dt": args.dt}, est, args.horizon, joints,
                                  inflation, prov, k_min, weak, bool(args.initial_state_set))

@@ -5,7 +5,8 @@ from a seeded schedule (:mod:`reachset_ros.sim.campaign`), every stop measured.
 observer, controller with ``wait_for_monitor``, monitor), records ``train`` s ``train_runs``
 times with the initial gains, identifies the monitor's model from those recordings with the
 inflation calibrated by cross-validation on them, each recording a fold (``reachset identify
-BAG1 ... BAGn --calibrate n``), resets the monitor and then runs the events: for each, a fault-free stretch of
+BAG1 ... BAGn --calibrate n --calibrate-margin m``: m grid steps above what the folds
+needed, for a run much longer than a fold), resets the monitor and then runs the events: for each, a fault-free stretch of
 monitored running, the fault, the wait for the stop, the braking it causes, and the recovery
 (faults cleared, a killed process restarted, the monitor reset, the arm tracking again for
 ``RECOVER_S`` without a stop; a stop during the recovery is counted apart and the reset
@@ -131,11 +132,14 @@ class Burners:
         self.procs = []
 
 
-def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=None, train_runs=3):
+def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=None, train_runs=3,
+                 calibrate_margin=0):
     """Run ``events`` (:func:`reachset_ros.sim.campaign.schedule`); returns ``(outcomes, info)``.
 
     ``model``: a model file for the monitor (skips the training recordings and the
-    identification); ``info`` has the model, its inflation and the nodes' logs directory."""
+    identification); ``calibrate_margin``: grid steps of inflation above the cross-validated
+    one (``identify --calibrate-margin``); ``info`` has the model, its inflation (and the
+    cross-validated one) and the nodes' logs directory."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
     procs = {}
@@ -339,14 +343,16 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 bags.append(bag)
             model = workdir / "monitor_model.yaml"
             cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags),
-                   "--calibrate", str(train_runs),
+                   "--calibrate", str(train_runs), "--calibrate-margin", str(calibrate_margin),
                    "--out", str(model), "--json"]
             p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             out, err = p.communicate()
             if p.returncode != 0:
                 raise RuntimeError("identify: " + ((err.strip().splitlines() or ["?"])[-1]))
-            info["inflation"] = json.loads(out)["inflation"]
-            log(f"[campaign] monitor model identified, calibrated inflation {info['inflation']:g}")
+            res = json.loads(out)
+            info["inflation"], info["calibrated_inflation"] = res["inflation"], res["calibrated_inflation"]
+            log(f"[campaign] monitor model identified, inflation {info['inflation']:g} (cross-validated "
+                f"{info['calibrated_inflation']:g}, {calibrate_margin} grid steps of margin)")
             # what the training covered: a motion faster than this on a joint is outside the
             # data its sets were identified on (benchmarks/false_stop_coverage.py)
             refs = read_references(bags)

@@ -47,6 +47,10 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
         if self.active:
             super().on_plant_input(msg)
 
+    def on_reference(self, msg):
+        if self.active:
+            super().on_reference(msg)
+
     def watchdog(self):
         if self.active:
             super().watchdog()

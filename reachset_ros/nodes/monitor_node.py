@@ -29,14 +29,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from reachset_msgs.msg import ConformanceStatus, PlantInput, SafeStop
+from reachset_msgs.msg import ConformanceStatus, JointReference, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 from reachset_msgs.srv import ResetStop
 from std_srvs.srv import Trigger
 
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
-from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, TickEvent
+from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorModel, StuckSensorWatch, TickEvent
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
 from .audit import log_privileged
@@ -82,7 +82,13 @@ class MonitorCore:
       nothing, ``short_ticks`` those at which something but not step k* was checked.
     """
 
-    def __init__(self, model: mdl.ConformanceModel, joints=None, max_missing_ticks=25, effort=None):
+    #: defaults of the stuck-sensor rule (:class:`~reachset_ros.conformance.monitor.StuckSensorWatch`)
+    #: and of the lossy-link rule (``gap_window`` of
+    #: :class:`~reachset_ros.conformance.monitor.CoverageWatch`), the node's parameters' defaults
+    STUCK_TICKS, STUCK_SPEED, GAP_WINDOW = 5, 0.05, 25
+
+    def __init__(self, model: mdl.ConformanceModel, joints=None, max_missing_ticks=25, effort=None,
+                 stuck_ticks=STUCK_TICKS, stuck_speed=STUCK_SPEED, gap_window=GAP_WINDOW):
         self.model = model
         #: ``input_source: effort``: the plant input of each /joint_states message is computed
         #: from its position, velocity and effort (:class:`~reachset_ros.robot.effort.EffortInput`)
@@ -108,13 +114,20 @@ class MonitorCore:
         self.ticks_since_reset = 0
         keep = model.horizon + model.estimator.history + 2
         self.window = collections.deque(maxlen=keep)
-        self.coverage = CoverageWatch(self.dt_ns, model.estimator.history, model.horizon, max_missing_ticks)
+        self.coverage = CoverageWatch(self.dt_ns, model.estimator.history, model.horizon, max_missing_ticks,
+                                      gap_window)
+        #: the stuck-sensor rule (None: off, ``stuck_ticks`` 0); fed by :meth:`add_reference`
+        self.stuck = (StuckSensorWatch(self.joints, self.dt_ns, stuck_ticks, stuck_speed)
+                      if int(stuck_ticks) > 0 else None)
         self._name_map = {}           # topic kind -> (names, index array or None, other names present)
+        self._ref_map = None          # /reference names -> (names, index array or None if a joint lacks)
 
     def reset(self):
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
         self.monitor.reset()
         self.coverage.reset()
+        if self.stuck is not None:
+            self.stuck.reset()
         self.ticks_since_reset = 0
         self.pending.clear()
         self.last_stamp = None
@@ -154,6 +167,26 @@ class MonitorCore:
 
     def add_u(self, stamp, names, values):
         return self.add("u", stamp, names, values)
+
+    def add_reference(self, stamp, names, velocity):
+        """A ``/reference`` sample for the stuck-sensor rule: its stamp and the joints' qd_d.
+
+        Returns nothing: the rule is applied at the ticks (:meth:`_process`). A reference
+        that lacks a monitored joint or whose velocity array is short is not used (counted
+        in ``unusable_reference``): the rule then checks nothing at those ticks, and the
+        sets' check goes on as before."""
+        if self.stuck is None:
+            return
+        names = list(names)
+        cached = self._ref_map
+        if cached is None or cached[0] != names:
+            pos = {n: i for i, n in enumerate(names)}
+            idx = None if any(j not in pos for j in self.joints) else np.array([pos[j] for j in self.joints])
+            cached = self._ref_map = (names, idx)
+        if cached[1] is None or len(velocity) != len(names):
+            self.counters["unusable_reference"] += 1
+            return
+        self.stuck.add_reference(stamp, np.asarray(velocity, dtype=np.float64)[cached[1]])
 
     def _pick(self, kind, names, values, stamp):
         """The monitored joints' values in ``self.joints`` order, or None and the FaultEvent.
@@ -259,6 +292,11 @@ class MonitorCore:
         if fault is not None:
             self.counters["coverage_faults"] += 1
             events.append(fault)
+        if self.stuck is not None:
+            fault = self.stuck.update(stamp, y)
+            if fault is not None:
+                self.counters["stuck_sensor"] += 1
+                events.append(fault)
         return events
 
 
@@ -277,6 +315,16 @@ class MonitorNode(Node):
                                                                "(after the warm-up) without the checks the model "
                                                                "needs, before a fault",
                                                                1, 10000, integer=True))
+        self.declare_parameter("gap_window", MonitorCore.GAP_WINDOW,
+                               desc("lossy-link limit: samples lost again within this many ticks (stamp time) of "
+                                    "the previous loss is a coverage fault (0: off)", 0, 100000, integer=True))
+        self.declare_parameter("stuck_ticks", MonitorCore.STUCK_TICKS,
+                               desc("stuck-sensor rule: a joint's position reading repeated this many times in a "
+                                    "row while its /reference moves at >= stuck_speed is an invalid_sample fault "
+                                    "(0: off; no /reference: not checked)", 0, 100000, integer=True))
+        self.declare_parameter("stuck_speed", MonitorCore.STUCK_SPEED,
+                               desc("stuck-sensor rule: the reference speed, rad/s, at which a joint must move",
+                                    1e-6, 100.0))
         self.declare_parameter("window_dir", "bags/safe_stop", desc("where offending windows are written"))
         self.declare_parameter("dt", 0.004, desc("tick period, s (the watchdog's timer, read at start-up)", 1e-4, 1.0,
                                                  read_only=True))
@@ -323,6 +371,7 @@ class MonitorNode(Node):
         self.create_subscription(JointState, "joint_states", self.on_joint_states, INPUT_QOS)
         if source != "effort":
             self.create_subscription(PlantInput, "plant_input", self.on_plant_input, INPUT_QOS)
+        self.create_subscription(JointReference, "reference", self.on_reference, INPUT_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_service(ResetStop, "~/reset_stop", self.on_reset_stop)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -367,15 +416,21 @@ class MonitorNode(Node):
         self.first_rx_wall.clear()
 
     # -- configuration ------------------------------------------------------------------
-    def build(self, path, joints=None, max_missing=None):
-        """A new :class:`MonitorCore` for ``path`` (not applied); ``(core, model_id, reason)``."""
+    def build(self, path, joints=None, new=None):
+        """A new :class:`MonitorCore` for ``path`` (not applied); ``(core, model_id, reason)``.
+        ``new``: parameter values of a request not applied yet (the others are read)."""
         if self.effort_error:
             return None, "", self.effort_error
+        new = new or {}
+
+        def param(name):
+            return new[name] if name in new else self.get_parameter(name).value
+
         try:
             model = mdl.load(path)
             joints = joints if joints is not None else [j for j in self.get_parameter("joints").value if j]
-            core = MonitorCore(model, joints or None, max_missing if max_missing is not None
-                               else self.get_parameter("max_missing_ticks").value, self.effort)
+            core = MonitorCore(model, joints or None, param("max_missing_ticks"), self.effort,
+                               param("stuck_ticks"), param("stuck_speed"), param("gap_window"))
             model_id = mdl.file_sha256(path)[:12]
         except (ReachsetError, OSError) as e:
             return None, "", str(e)
@@ -405,12 +460,20 @@ class MonitorNode(Node):
             path = new.get("model_file", self.get_parameter("model_file").value)
             joints = [j for j in new.get("joints", self.get_parameter("joints").value) if j]
             if path:
-                core, model_id, why = self.build(path, joints, new.get("max_missing_ticks"))
+                core, model_id, why = self.build(path, joints, new)
                 if core is None:
                     return SetParametersResult(successful=False, reason=why)
                 self.apply(core, model_id, path)
-        elif "max_missing_ticks" in new and self.core is not None:
-            self.core.coverage.set_max_missing_ticks(new["max_missing_ticks"])
+        elif self.core is not None:
+            if "max_missing_ticks" in new:
+                self.core.coverage.set_max_missing_ticks(new["max_missing_ticks"])
+            if "gap_window" in new:
+                self.core.coverage.set_gap_window(new["gap_window"])
+            if "stuck_ticks" in new or "stuck_speed" in new:
+                ticks = new.get("stuck_ticks", self.get_parameter("stuck_ticks").value)
+                speed = new.get("stuck_speed", self.get_parameter("stuck_speed").value)
+                self.core.stuck = (StuckSensorWatch(self.core.joints, self.core.dt_ns, ticks, speed)
+                                   if ticks > 0 else None)
         return SetParametersResult(successful=True)
 
     # -- data ---------------------------------------------------------------------------
@@ -430,6 +493,11 @@ class MonitorNode(Node):
 
     def on_plant_input(self, msg):
         self.on_data("u", msg.header.stamp, msg.name, msg.acceleration)
+
+    def on_reference(self, msg):
+        """/reference feeds the stuck-sensor rule only (no tick, no watchdog)."""
+        if self.core is not None:
+            self.core.add_reference(stamp_ns(msg.header.stamp), list(msg.name), msg.velocity)
 
     def on_data(self, kind, stamp, names, values):
         if self.core is None:
@@ -624,6 +692,8 @@ class MonitorNode(Node):
             cov = self.core.coverage
             values = {"longest_step": cov.last_longest, "horizon": self.core.model.horizon,
                       "horizon_coverage": f"{cov.share:.4f}"}
+            if self.core.stuck is not None:     # ticks the stuck-sensor rule had no reference for
+                values["stuck_rule_unreferenced_ticks"] = self.core.stuck.unreferenced
         st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted({**counts, **values}.items())]
         arr.status = [st]
         self.diag_pub.publish(arr)
