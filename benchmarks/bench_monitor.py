@@ -63,15 +63,18 @@ def main():
         return d[K + 10:] * 1e6
 
     def run_core():
-        """The monitor node's whole per-tick work without ROS: pairing, the tick, coverage."""
+        """The monitor node's whole per-tick work without ROS: pairing, the tick, coverage,
+        the stuck-sensor rule with the tick's /reference (moving: the rule looks at every tick)."""
         core = MonitorCore(model)
         names = [f"j{j}" for j in range(J)]
+        qd = [0.3] * J
         d = np.empty(T)
         for i in range(T):
             stamp = 10**18 + 4_000_000 * i
             y, u = Y[i].tolist(), U[i].tolist()     # as the node gets them from the messages
             t0 = time.perf_counter()
             core.add_y(stamp, names, y)
+            core.add_reference(stamp, names, qd)
             events = core.add_u(stamp, names, u)
             d[i] = time.perf_counter() - t0
             if len(events) != 1 or not isinstance(events[0], TickEvent):
@@ -101,7 +104,7 @@ def main():
         return d[K + 10:] * 1e6
 
     for label, d in (("monitor tick", lambda: run(False)), ("tick + coverage", lambda: run(True)),
-                     ("MonitorCore.add_y + add_u (the node's whole check)", run_core),
+                     ("MonitorCore.add_y + add_reference + add_u (the node's whole check)", run_core),
                      ("MonitorCore.add_joint_state, input_source effort (u_p by Pinocchio ABA)", run_effort)):
         d = d()
         print(f"{label}, {J} joints, k*={K}, {len(d)} ticks: mean {d.mean():.1f} us, "

@@ -434,7 +434,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     import subprocess
     import sys
     from std_msgs.msg import Header
-    from reachset_ros.nodes.demo_driver import MONITOR_TOPICS
+    from reachset_ros.nodes.demo_driver import LOCKSTEP_TIMEOUT, MONITOR_TOPICS
     p = lwa4p_joint_plant()
     horizon = 125
     # about 3x the sets identified on 15 s of this closed loop (alpha_w <= 1.9, alpha_v <= 3.6e-4)
@@ -448,7 +448,12 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     procs = [launch.start("recorder_node", {"output": str(bag), "topics": MONITOR_TOPICS}, tmp_path),
              launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
                                            "window_dir": str(tmp_path / "windows")}, tmp_path),
-             launch.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
+             # lockstep timeout 0.3 s (the demo's, default 50 ms): once, in a loaded `make test`, the
+             # data left the sets 640 ms before the fault (check and monitor agreed: a real
+             # violation); a simulator that holds a stale command, an input the recorded
+             # /plant_input does not show, is the known way to that (docs/reliability.md, stall
+             # diagnosis) -- not confirmed, the run's logs were gone
+             launch.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
              launch.start("reference_node", {"seed": 3}, tmp_path),
              launch.start("observer_node", common, tmp_path),
              launch.start("controller_node", common, tmp_path)]
@@ -498,7 +503,8 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
           f"{(first_monitor - onset) / 1e6 if first_monitor and onset else None} ms after the onset; "
           f"{len(verdicts)} statuses, check: {sum(j['violations'] for j in chk['joints'].values())} violating ticks")
     assert onset is not None and first_monitor is not None
-    assert first_monitor >= onset                     # no false alarm before the fault
+    # no false alarm before the fault (the simulator's log says how many steps held a stale command)
+    assert first_monitor >= onset, procs[2].log.read_text()[-600:]
     assert first_check == first_monitor
     assert active and active[0] == first_monitor      # and that tick is the safe stop
     assert not chk["conformant"]

@@ -23,8 +23,8 @@ What each event is expected to do (``Event.expect``):
   an event, is a false stop.
 * ``link`` events (the relay between ``/joint_states`` and the monitor,
   :mod:`reachset_ros.nodes.relay_node`): ``loss`` (half the samples dropped at random until the
-  stop) must stop -- the monitor can no longer form test cases of k* steps (its ``coverage``
-  fault); ``sparse`` (one sample in :data:`SPARSE_EVERY` dropped, for :data:`LINK_S`) and
+  stop) must stop -- the monitor loses samples again and again and can no longer form test
+  cases of k* steps (its ``coverage`` fault); ``sparse`` (one sample in :data:`SPARSE_EVERY` dropped, for :data:`LINK_S`) and
   ``delay`` (10-80 ms added to every sample, order kept, for :data:`LINK_S`) must not.
 * ``either``: a freeze of :data:`FREEZE_TOLERATED_S` or longer (up to 0.5 s): the simulator
   holds a stale command and the catch-up may exceed the monitor's 0.5 s missing-data limit,
@@ -49,8 +49,10 @@ __all__ = ["Event", "Outcome", "SIM_FAULTS", "schedule", "score", "table", "DETE
 
 #: a fault that must stop is missed when no stop arrives within this much simulated time
 DETECT_WITHIN_S = 1.0
-#: ... for a link ``loss``: the monitor's coverage rule allows its warm-up plus its
-#: missing-data limit (3 + 125 + 125 ticks = 1.012 s in the campaign) before the stop
+#: ... for a link ``loss``: the monitor's horizon rule allows its warm-up plus its
+#: missing-data limit (3 + 125 + 125 ticks = 1.012 s in the campaign) before the stop; its
+#: lossy-link rule (``gap_window``, since the fifth long run) stops at the second loss, but
+#: the window stays as it was so that earlier runs are scored alike
 LOSS_DETECT_S = 2.0
 #: ... or this much wall time (a killed or frozen simulator stops the simulation's clock)
 DETECT_WITHIN_WALL_S = 5.0
