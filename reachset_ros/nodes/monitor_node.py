@@ -5,7 +5,8 @@ name, feeds :class:`reachset_ros.conformance.monitor.Monitor` one tick at a time
 ``/conformance/status`` every tick and ``/diagnostics`` at about 1 Hz. On the first
 violation, or on a fault (missing data for more than ``max_missing_ticks`` ticks, an
 invalid sample, a joint-name mismatch, a stamp going backwards, a stream on which the test
-cases the model needs cannot be formed: ``coverage``), it publishes a latched
+cases the model needs cannot be formed: ``coverage``, a position reading stuck while the
+joint's ``/reference`` moves: ``invalid_sample``), it publishes a latched
 ``/safe_stop`` (reliable, transient local) and writes the offending window (the last
 k* + history ticks) to a bag. Only a reset clears the stop: ``~/reset`` (std_srvs/Trigger)
 or ``~/reset_stop`` (reachset_msgs/ResetStop, naming the caller and the reason); refused
@@ -79,7 +80,11 @@ class MonitorCore:
       the model's dt, or losses keep every test case short of k*): fault ``coverage`` from
       :class:`~reachset_ros.conformance.monitor.CoverageWatch`, within ``max_missing_ticks``
       ticks after the warm-up; ``unchecked_ticks`` counts ticks at which some joint checked
-      nothing, ``short_ticks`` those at which something but not step k* was checked.
+      nothing, ``short_ticks`` those at which something but not step k* was checked; samples
+      lost again within ``gap_window`` ticks of the previous loss: the same fault at once;
+    * a joint's position reading repeated ``stuck_ticks`` times while its reference (fed by
+      :meth:`add_reference`) moves at >= ``stuck_speed``: fault ``invalid_sample`` (a stuck
+      sensor, :class:`~reachset_ros.conformance.monitor.StuckSensorWatch`).
     """
 
     #: defaults of the stuck-sensor rule (:class:`~reachset_ros.conformance.monitor.StuckSensorWatch`)
