@@ -78,6 +78,13 @@ def test_score_counts_misses_false_stops_and_latency():
     jump = cp.Outcome(cp.Event(10, "stamp_jump", 1.0, "stop", seconds=0.3), fault_ns=1_000_000_000,
                       stops=[(700_000_000, 1_004_000_000, "stamp_backwards")])
     assert cp.score([jump])["detection_ms"]["max"] == pytest.approx(4.0)
+    # split by the CPU burners
+    hot = cp.Outcome(cp.Event(11, "sim", 1.0, "stop", fault="bias", joint="a", burners=True), fault_ns=0,
+                     stops=[(0, 30_000_000, "violation")])
+    sb = cp.score([hot, jump])
+    assert (sb["detection_ms_burners"]["max"], sb["detection_ms_quiet"]["max"]) == pytest.approx((30.0, 4.0))
+    assert sb["detection_ms_burners"]["n"] == sb["detection_ms_quiet"]["n"] == 1
+    assert "with the CPU burners on / off" in cp.table(sb)
     assert s["detection_ms"]["max"] == pytest.approx(4.0)
     assert s["stamp_latency_ms_by_kind"] and "detection and delivery" in cp.table(s)
     text = cp.table(s)

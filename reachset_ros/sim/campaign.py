@@ -306,7 +306,8 @@ def score(outcomes, apparatus_stops=()):
         measurement outside the model's sets, or the tick at which a data rule's allowance ran
         out) and ``stamp_latency_ms_by_kind``, ``detection_ms`` (the stop's arrival after the later
         of its own stamp and the fault's: the monitor's detection and the delivery, the part of
-        the latency that is the monitor's and not the fault's physics), ``wall_latency_ms``
+        the latency that is the monitor's and not the fault's physics; ``detection_ms_burners``
+        and ``detection_ms_quiet`` split it by the CPU burners), ``wall_latency_ms``
         for killed processes, ``braking_ticks_max`` (first braking command after the stop's
         arrival at the controller, ticks; killed controllers excluded), ``misses`` and
         ``false`` (each with its event, stamps and bag).
@@ -369,6 +370,9 @@ def score(outcomes, apparatus_stops=()):
         "stamp_latency_ms": stats(stamp_lat),
         "stamp_latency_ms_by_kind": {k: stats(v) for k, v in sorted(stamp_by_kind.items())},
         "detection_ms": stats(detection),
+        # the same with and without the CPU burners (normal priority, like the suite's processes)
+        "detection_ms_burners": stats([d for o, d in zip(arrived, detection) if o.event.burners]),
+        "detection_ms_quiet": stats([d for o, d in zip(arrived, detection) if not o.event.burners]),
         "wall_latency_ms_killed": stats(wall),
         "braking_ticks_max": max(braking) if braking else None,
         "braking_measured": len(braking),
@@ -422,6 +426,8 @@ def table(s):
         ("the stop's own stamp after the fault's, ms", ms(s["stamp_latency_ms"])),
         ("the stop's arrival after the later of its own stamp and the fault's (detection and "
          "delivery), ms", ms(s.get("detection_ms"))),
+        ("  ... with the CPU burners on / off, ms", f"{ms(s.get('detection_ms_burners'))} / "
+                                                  f"{ms(s.get('detection_ms_quiet'))}"),
         ("killed process: wall time to the stop, ms", ms(s["wall_latency_ms_killed"])),
         ("braking onset after the stop's arrival, ticks (max; killed processes apart)",
          "-" if s["braking_ticks_max"] is None else f"{s['braking_ticks_max']:g} (n={s['braking_measured']})"),
