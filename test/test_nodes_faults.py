@@ -371,7 +371,7 @@ def test_core_a_reading_repeated_while_the_reference_moves_is_a_stuck_sensor(mod
         return
     assert f and f[0].kind == "invalid_sample" and f[0].joint == JOINTS[1], f
     assert f[0].stamp == ts[305], (f[0].stamp - ts[300]) / DT_NS
-    assert "repeated 5 times in a row (20 ms)" in f[0].reason and "stuck sensor" in f[0].reason, f[0].reason
+    assert "repeated 5 times in a row, the last 5 (20 ms)" in f[0].reason and "stuck sensor" in f[0].reason, f[0].reason
     # joint 1's reading never repeats: the fault names joint 2 only, and the sets saw nothing
     assert all(e.joint == JOINTS[1] for e in f)
     assert not [e for e in ticks_of(ev) if "violation" in e.result["status"]]
@@ -397,6 +397,7 @@ def test_core_stuck_rule_needs_every_tick_referenced_and_no_gap(model):
     f = [e for e in faults_of(ev) if "stuck" in e.reason]
     # repeats from 205 on (204 follows the gap); 5 referenced repeats in a row: 208..213
     assert f and f[0].stamp == ts[213], (f[0].stamp - ts[200]) / DT_NS
+    assert "repeated 9 times in a row, the last 5 (20 ms)" in f[0].reason, f[0].reason
 
 
 def test_core_a_single_gap_is_no_coverage_fault(model):

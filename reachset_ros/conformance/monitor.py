@@ -712,9 +712,9 @@ class StuckSensorWatch:
                 name = self.joints[j]
                 return FaultEvent(stamp, "invalid_sample",
                                   f"joint {name}: position reading {y[j]:.9g} rad repeated {int(self.repeats[j])} "
-                                  f"times in a row ({_ms(stamp - self.stamps[0])}) while its reference moved at "
-                                  f">= {low[j]:.3g} rad/s (rule: {self.ticks} repeats at >= {self.speed:g} rad/s): "
-                                  "stuck sensor", name)
+                                  f"times in a row, the last {self.ticks} ({_ms(stamp - self.stamps[0])}) while its "
+                                  f"reference moved at >= {low[j]:.3g} rad/s (rule: {self.ticks} repeats at "
+                                  f">= {self.speed:g} rad/s): stuck sensor", name)
         return None
 
 
