@@ -129,3 +129,36 @@ def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tm
     assert s["rest_judged"] >= s["stops"] - sum(1 for o in res["outcomes"] if o["event"] == "kill sim_node")
     assert s["not_at_rest"] == [], s["not_at_rest"]
     assert p.returncode == 0
+
+
+def test_a_frozen_sensor_stopped_before_its_joint_moved_is_not_late(tmp_path):
+    """A frozen sensor's window starts at the first reference motion of its joint above
+    FROZEN_MOTION; one stopped (by the sets) during a slower move, 1.5 s after the fault, is
+    marked from the bag's /reference (``frozen_before_motion``) and counted as a stop, not as
+    a late one (the runner had used the fault's stamp: a miss); the same stop after a fast
+    move is late. Its latency from the fault is still reported."""
+    from reachset_ros import bags
+    from reachset_ros.nodes.campaign_driver import frozen_before_motion
+    T0, DT = 10**18, 4_000_000
+    JR = bags.typestore().types[bags.REFERENCE_TYPE]
+    out = {}
+    for case, speed in (("slow", 0.03), ("fast", 0.3)):
+        path = tmp_path / case
+        with bags.BagWriter(path) as w:
+            for k in range(600):
+                t = T0 + k * DT
+                w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=["a", "b"], position=np.zeros(2),
+                                                 velocity=np.array([speed, 0.5]), acceleration=np.zeros(2)),
+                        t, bags.REFERENCE_TYPE)
+        ev = cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a")
+        stop = T0 + 1_500_000_000
+        o = cp.Outcome(ev, fault_ns=T0 + 4 * DT, observable_ns=T0 + 4 * DT, stops=[(stop, stop + DT, "violation")],
+                       bag=str(path))
+        frozen_before_motion([o])
+        out[case] = (o.stopped_before_motion, cp.score([o]))
+    (slow, s_slow), (fast, s_fast) = out["slow"], out["fast"]
+    assert slow and not fast
+    assert (s_slow["stops"], s_slow["missed_stops"]) == (1, 0) and len(s_slow["stopped_before_motion"]) == 1
+    assert s_slow["stopped_before_motion"][0]["latency_ms"] == pytest.approx(1488.0)
+    assert (s_fast["stops"], s_fast["missed_stops"]) == (0, 1)
+    assert "stopped before their joint moved" in cp.table(s_slow)

@@ -399,6 +399,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             launch.stop([rec])
             rec = None
         judge_stops(outcomes)
+        frozen_before_motion(outcomes)
         return outcomes, info
     finally:
         burners.off()
@@ -420,6 +421,28 @@ def _record(driver, workdir, bag, topics, node, group):
         raise RuntimeError(f"{node} did not subscribe to {topics} within 60 s")
     driver.spin_for(0.5)
     return rec
+
+
+def frozen_before_motion(outcomes):
+    """Mark the frozen-sensor events that stopped before their joint's reference moved at more
+    than :data:`~reachset_ros.sim.campaign.FROZEN_MOTION` after the fault
+    (``Outcome.stopped_before_motion``), from the recorded ``/reference`` of each event's bag:
+    their detection window had not begun (the window of a frozen sensor starts at that motion),
+    so the score does not count them late. The runner stops waiting for the motion once a stop
+    arrives, so the bag, not the runner's clock, decides (the same for a re-score)."""
+    from ..bags.references import read_references
+    todo = [o for o in outcomes if o.event.kind == "sim" and o.event.fault == "frozen" and o.stops and o.bag]
+    by_bag = {}
+    for o in todo:
+        by_bag.setdefault(o.bag, []).append(o)
+    for bag, group in by_bag.items():
+        refs = read_references([bag], joints=sorted({o.event.joint for o in group}))
+        for o in group:
+            lo, hi = o.fault_ns, o.stops[0][0]
+            fast = [r.stamps[(r.stamps > lo) & (r.stamps <= hi) & (np.abs(r.qd) > cp.FROZEN_MOTION)]
+                    for r in refs.get(o.event.joint, [])]
+            seen = any(((r.stamps > lo) & (r.stamps <= hi)).any() for r in refs.get(o.event.joint, []))
+            o.stopped_before_motion = bool(seen and not any(len(f) for f in fast))
 
 
 def judge_stops(outcomes):

@@ -149,6 +149,10 @@ class Outcome:
     rest: dict = None                 # the stop's effect from the bag (:func:`judge_rest`)
     stale_steps: int = 0              # simulator steps on a stale command during the event (its /diagnostics)
     observable_ns: int = 0            # frozen sensor: first reference motion of its joint after the fault
+    #: frozen sensor stopped while its joint's reference never exceeded FROZEN_MOTION after the
+    #: fault (a slow move: the stop came before the window starts, so it cannot be late; the
+    #: latency still counts from the fault)
+    stopped_before_motion: bool = False
 
     def latency_from(self):
         """The stamp latencies count from: the fault's, or for a frozen sensor the first
@@ -317,7 +321,9 @@ def score(outcomes, apparatus_stops=()):
     arrived = [o for o in faults if o.stops]
     # a stop that arrived after the event's detection window is a missed stop (the runner
     # keeps whatever stop it has when it stops waiting, possibly a later one)
-    late = [o for o in arrived if o.latency_ns() > detect_within_s(o.event) * 1e9]
+    # (a frozen sensor stopped before its joint moved at > FROZEN_MOTION: its window had not
+    # begun, so the stop is not late; reported apart with its latency from the fault)
+    late = [o for o in arrived if not o.stopped_before_motion and o.latency_ns() > detect_within_s(o.event) * 1e9]
     stopped = [o for o in arrived if o not in late]
     missed = [o for o in faults if not o.stops] + late
     false = []
@@ -359,6 +365,8 @@ def score(outcomes, apparatus_stops=()):
         "events": len(outcomes),
         "faults_injected": len(faults),
         "unobservable": [o.event.label() for o in unobservable],
+        "stopped_before_motion": [{"event": o.event.label(), "latency_ms": o.latency_ns() * 1e-6}
+                                  for o in arrived if o.stopped_before_motion],
         "stops": len(stopped),
         "missed_stops": len(missed),
         "false_stops": len(false),
@@ -418,6 +426,10 @@ def table(s):
         ("events (faults expecting a stop)", f"{s['events']} ({s['faults_injected']})"),
         ("stops / missed stops", f"{s['stops']} / {s['missed_stops']}"),
         ("frozen sensors whose joint did not move (unobservable, not scored)", str(len(s.get("unobservable", [])))),
+        ("frozen sensors stopped before their joint moved at > 0.05 rad/s (stops; ms after the fault)",
+         f"{len(s.get('stopped_before_motion', []))}" + (" (" + ", ".join(
+             f"{x['latency_ms']:.0f}" for x in s.get("stopped_before_motion", [])) + ")"
+             if s.get("stopped_before_motion") else "")),
         ("false stops", str(s["false_stops"])),
         ("freezes in the tolerance band (stopped)", f"{s['either']['events']} ({s['either']['stopped']})"),
         ("fault-free monitored time, simulated min", f"{s['fault_free_minutes']:.2f}"),
