@@ -7,8 +7,9 @@ for 50-500 ms, stamp jumps, fault-free stretches; CPU burners on both cores for 
 block of 8 events). Prints the table (docs/reliability.md, "Fault campaign") and writes
 ``campaign.json`` (every outcome and the score) to the work directory.
 
-Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 320 --seed 1 --quiet 4 8`` (about
-an hour of wall time; six training recordings of 40 s); ``--short`` is the `make test` variant (test/test_fault_campaign.py): 10 events
+Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 480 --seed 1 --quiet 4 8`` (about
+80 minutes of wall time; six training recordings of 40 s, the inflation one grid step above the
+cross-validated one); ``--short`` is the `make test` variant (test/test_fault_campaign.py): 10 events
 after 1-2 s of fault-free running each, no burners, three training recordings of 20 s.
 Exit status 0 when nothing was missed and no stop was false, 1 otherwise.
 """
