@@ -29,28 +29,38 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reachset_ros.bags import read_joint_series, read_references  # noqa: E402
+from reachset_ros.conformance.monitor import StuckSensorWatch  # noqa: E402
 
 THRESHOLDS = (0.0, 0.01, 0.02, 0.05)
+DT_NS = 4_000_000
 
 
-def repeat_runs(y):
-    """Length of the run of repeats ending at each sample (0: differs from the one before)."""
-    out = np.zeros(len(y), dtype=np.int64)
-    for i in range(1, len(y)):
-        out[i] = out[i - 1] + 1 if y[i] == y[i - 1] else 0
-    return out
-
-
-def longest_while(y, speed, thr):
-    """Longest run of repeats during which ``speed`` (per sample) stayed >= thr."""
+def longest_while(y, speed, thr, stamps=None):
+    """Longest run of repeats during which ``speed`` (per sample) stayed >= thr; with
+    ``stamps``, a step other than one tick ends a run."""
     best = n = 0
     for i in range(1, len(y)):
-        if y[i] == y[i - 1] and speed[i] >= thr and speed[i - 1] >= thr:
+        if (y[i] == y[i - 1] and speed[i] >= thr and speed[i - 1] >= thr
+                and (stamps is None or stamps[i] - stamps[i - 1] == DT_NS)):
             n += 1
             best = max(best, n)
         else:
             n = 0
     return best
+
+
+def rule_fires(name, st, y, speed, ticks, min_speed):
+    """Stamps at which the monitor's own rule (:class:`StuckSensorWatch`, fed the readings and
+    the references of the same stamps) starts to fire: one per run of repeats it stops on."""
+    watch = StuckSensorWatch([name], DT_NS, ticks, min_speed)
+    out, firing = [], False
+    for t, yi, v in zip(st, y, speed):
+        watch.add_reference(int(t), [v])
+        hit = watch.update(int(t), [yi]) is not None
+        if hit and not firing:
+            out.append(int(t))
+        firing = hit
+    return out
 
 
 def real_data(path):
@@ -94,7 +104,8 @@ def campaign(work, ticks=5, speed=0.05):
                 if o["event"].split()[2] != name or not lo <= o["fault_ns"] <= hi:
                     continue
                 after = st >= o["fault_ns"]
-                fire = _first_fire(st[after], y[after], speed_at[after], ticks, speed)
+                fires = rule_fires(name, st[after], y[after], speed_at[after], ticks, speed)
+                fire = fires[0] if fires else None
                 obs = o.get("observable_ns") or o["fault_ns"]
                 stop = o["stops"][0][1] if o["stops"] else None
                 detect.append((o["event"], None if fire is None else (fire - obs) / 1e6,
@@ -103,19 +114,14 @@ def campaign(work, ticks=5, speed=0.05):
             cut = [f for f in frozen if lo <= f <= hi]
             keep = st < (min(cut) if cut else hi + 1)
             samples += int(keep.sum())
-            yy, sp = y[keep], speed_at[keep]
-            same = np.r_[False, (yy[1:] == yy[:-1]) & (np.diff(st[keep]) == 4_000_000)]
-            n = 0
-            for i in range(len(yy)):
-                n = n + 1 if same[i] and sp[i] >= speed and sp[i - 1] >= speed else 0
-                best[name] = max(best.get(name, 0), n)
-                if n == ticks:
-                    fired.append((name, int(st[keep][i]), Path(b).name))
+            sk, yy, sp = st[keep], y[keep], speed_at[keep]
+            best[name] = max(best.get(name, 0), longest_while(yy, sp, speed, sk))
+            fired += [(name, t, Path(b).name) for t in rule_fires(name, sk, yy, sp, ticks, speed)]
     print(f"\ncampaign {work}: {len(blocks)} blocks, {samples} joint samples outside frozen-sensor events")
     print(f"longest run of repeats while the reference speed stayed >= {speed} rad/s, per joint:")
     for name in sorted(best):
         print(f"  {name}: {best[name]}")
-    print(f"runs that reach the rule's {ticks} repeats: {len(fired)}")
+    print(f"runs the rule ({ticks} repeats) stops on: {len(fired)}")
     for f in fired[:20]:
         print("  ", *f)
     print(f"\nfrozen-sensor events ({len(detect)}): the rule's stop and the run's first stop, ms after the "
@@ -126,17 +132,6 @@ def campaign(work, ticks=5, speed=0.05):
     got = [r for _, r, _ in detect if r is not None]
     if got:
         print(f"  rule: {len(got)} of {len(detect)} detected, max {max(got):.0f} ms after the first motion")
-
-
-def _first_fire(st, y, sp, ticks, speed):
-    """Stamp at which the rule (``ticks`` repeats, each at reference speed >= speed) fires, or None."""
-    n = 0
-    for i in range(1, len(y)):
-        ok = y[i] == y[i - 1] and st[i] - st[i - 1] == 4_000_000 and sp[i] >= speed and sp[i - 1] >= speed
-        n = n + 1 if ok else 0
-        if n >= ticks:
-            return int(st[i])
-    return None
 
 
 def main(argv=None):

@@ -438,11 +438,10 @@ def frozen_before_motion(outcomes):
     for bag, group in by_bag.items():
         refs = read_references([bag], joints=sorted({o.event.joint for o in group}))
         for o in group:
-            lo, hi = o.fault_ns, o.stops[0][0]
-            fast = [r.stamps[(r.stamps > lo) & (r.stamps <= hi) & (np.abs(r.qd) > cp.FROZEN_MOTION)]
-                    for r in refs.get(o.event.joint, [])]
-            seen = any(((r.stamps > lo) & (r.stamps <= hi)).any() for r in refs.get(o.event.joint, []))
-            o.stopped_before_motion = bool(seen and not any(len(f) for f in fast))
+            # the joint's references from the fault to the stop: some recorded, none fast
+            window = [(r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0]) for r in refs.get(o.event.joint, [])]
+            fast = [w & (np.abs(r.qd) > cp.FROZEN_MOTION) for w, r in zip(window, refs.get(o.event.joint, []))]
+            o.stopped_before_motion = any(w.any() for w in window) and not any(f.any() for f in fast)
 
 
 def judge_stops(outcomes):

@@ -121,11 +121,14 @@ class MonitorCore:
         self.window = collections.deque(maxlen=keep)
         self.coverage = CoverageWatch(self.dt_ns, model.estimator.history, model.horizon, max_missing_ticks,
                                       gap_window)
-        #: the stuck-sensor rule (None: off, ``stuck_ticks`` 0); fed by :meth:`add_reference`
-        self.stuck = (StuckSensorWatch(self.joints, self.dt_ns, stuck_ticks, stuck_speed)
-                      if int(stuck_ticks) > 0 else None)
+        self.set_stuck_rule(stuck_ticks, stuck_speed)
         self._name_map = {}           # topic kind -> (names, index array or None, other names present)
         self._ref_map = None          # /reference names -> (names, index array or None if a joint lacks)
+
+    def set_stuck_rule(self, ticks, speed):
+        """The stuck-sensor rule anew (``self.stuck``, fed by :meth:`add_reference`; None: off,
+        ``ticks`` 0): at start and when the node's ``stuck_ticks``/``stuck_speed`` change."""
+        self.stuck = StuckSensorWatch(self.joints, self.dt_ns, ticks, speed) if int(ticks) > 0 else None
 
     def reset(self):
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
@@ -475,10 +478,8 @@ class MonitorNode(Node):
             if "gap_window" in new:
                 self.core.coverage.set_gap_window(new["gap_window"])
             if "stuck_ticks" in new or "stuck_speed" in new:
-                ticks = new.get("stuck_ticks", self.get_parameter("stuck_ticks").value)
-                speed = new.get("stuck_speed", self.get_parameter("stuck_speed").value)
-                self.core.stuck = (StuckSensorWatch(self.core.joints, self.core.dt_ns, ticks, speed)
-                                   if ticks > 0 else None)
+                self.core.set_stuck_rule(new.get("stuck_ticks", self.get_parameter("stuck_ticks").value),
+                                         new.get("stuck_speed", self.get_parameter("stuck_speed").value))
         return SetParametersResult(successful=True)
 
     # -- data ---------------------------------------------------------------------------

@@ -153,6 +153,8 @@ class Outcome:
     #: fault (a slow move: the stop came before the window starts, so it cannot be late; the
     #: latency still counts from the fault)
     stopped_before_motion: bool = False
+    bag: str = ""                     # the bag holding the event
+    note: str = ""
 
     def latency_from(self):
         """The stamp latencies count from: the fault's, or for a frozen sensor the first
@@ -162,8 +164,6 @@ class Outcome:
     def latency_ns(self):
         """The first stop's arrival after :meth:`latency_from` (needs a stop)."""
         return self.stops[0][1] - self.latency_from()
-    bag: str = ""                     # the bag holding the event
-    note: str = ""
 
     def as_dict(self):
         d = asdict(self)
