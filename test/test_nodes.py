@@ -24,6 +24,7 @@ from reachset_ros.nodes.controller_node import ControllerNode
 from reachset_ros.nodes.gain_params import gains_from
 from reachset_ros.systems.closedloop import FeedbackLaw, close_loop, closed_loop_tick, settling_ticks, stability
 from reachset_ros.systems.gains import Gains
+from reachset_ros.systems.late_reference import extrapolate
 from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
@@ -106,7 +107,8 @@ def test_controller_gains_through_parameter_service(ros, tmp_path):
 
 def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
     """The reference may arrive after the estimate of the same stamp (two nodes, two paths):
-    the controller waits for it; without one it uses the newest earlier reference."""
+    the controller waits for it; without one it uses the newest earlier reference, carried
+    forward to the estimate's stamp (systems.late_reference)."""
     ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0],
                                            "reference_timeout": 0.2, "allow_uncertified": True}, tmp_path)
     got = {}
@@ -136,14 +138,16 @@ def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
                 break
         assert stamp in got
         assert got[stamp] == pytest.approx(law(*ref), abs=1e-12)
-        # no reference for this stamp: after the timeout the newest earlier one is used
+        # no reference for this stamp: after the timeout the newest earlier one, 4 ms on
         k += 1
         stamp2 = 10**18 + k * 4_000_000
         e = JointEstimate(name=JOINTS, position=[0.1, -0.2], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
         to_stamp(e.header.stamp, stamp2)
         est_pub.publish(e)
         assert spin_until(ros, lambda: stamp2 in got, 5.0)
-        assert got[stamp2] == pytest.approx(law(*ref), abs=1e-12)
+        fwd = [list(a) for a in extrapolate(*ref, 0.004)]
+        assert fwd[0] != ref[0]
+        assert got[stamp2] == pytest.approx(law(*fwd), abs=1e-12)
     finally:
         launch.stop([ctl])
 
@@ -930,5 +934,94 @@ def test_controller_never_commands_back_in_stamp(ros):
         node.on_estimate(est(s1))                       # a late duplicate of an older tick
         assert sent == [s1, s2], sent
         assert node.counters["stale_estimate"] == 1
+    finally:
+        node.destroy_node()
+
+
+def _ref_node(**extra):
+    """A controller node (real rclpy) whose callbacks the test calls in a chosen order."""
+    from rclpy.parameter import Parameter
+    over = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
+            "reference_timeout": 0.0, **extra}
+    node = ControllerNode(parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
+    sent, brakes = [], []
+    publish, publish_b = node.input_pub.publish, node.brake_pub.publish
+    node.input_pub.publish = lambda m: (sent.append((stamp_ns(m.header.stamp), list(m.acceleration))), publish(m))
+    node.brake_pub.publish = lambda m: (brakes.append(list(m.engage)), publish_b(m))
+    return node, sent, brakes
+
+
+_S0 = 10**18
+_Q0, _V, _A = np.array([0.3, -0.4]), np.array([0.5, -0.3]), np.array([1.2, -0.8])
+
+
+def _ref_at(i):
+    """The reference at tick i: constant acceleration, so carrying it forward is exact."""
+    t = 0.004 * i
+    m = JointReference(name=JOINTS, position=list(_Q0 + _V * t + 0.5 * _A * t * t), velocity=list(_V + _A * t),
+                       acceleration=list(_A))
+    to_stamp(m.header.stamp, _S0 + 4_000_000 * i)
+    return m
+
+
+def _est_at(i):
+    e = JointEstimate(name=JOINTS, position=[0.31, -0.41], velocity=[0.45, -0.25], disturbance=[0.0, 0.0])
+    to_stamp(e.header.stamp, _S0 + 4_000_000 * i)
+    return e
+
+
+def test_late_references_are_carried_forward_not_held(ros):
+    """References that come just after their estimates (a backlog, as after the recorder switch
+    of the fifth long campaign): each tick is controlled with the newest earlier reference
+    carried forward to it. The old rule held the last on-time reference for as long as
+    the backlog lasted (136 ticks there: q_d stood still while the reference moved on)."""
+    node, sent, _ = _ref_node()
+    try:
+        node.on_reference(_ref_at(0))
+        node.on_estimate(_est_at(0))           # on time
+        for i in range(1, 11):
+            node.on_estimate(_est_at(i))       # its reference is not here: late
+            node.on_reference(_ref_at(i))      # ... and comes after it
+        assert [s for s, _ in sent] == [_S0 + 4_000_000 * i for i in range(11)]
+        e = _est_at(0)
+        for i, (_, u) in enumerate(sent):
+            r = _ref_at(i)
+            want = [node.law_input(j, e.position[k], e.velocity[k], 0.0, r.position[k], r.velocity[k],
+                                   r.acceleration[k]) for k, j in enumerate(JOINTS)]
+            np.testing.assert_allclose(u, want, rtol=0, atol=1e-9, err_msg=f"tick {i}")
+        assert node.counters["late_reference"] == 10
+        assert node.counters["reference_age_max_ns"] == 4_000_000
+        assert node.own_stop is None
+    finally:
+        node.destroy_node()
+
+
+def test_a_reference_older_than_reference_max_age_is_a_stop_of_the_controllers_own(ros):
+    """No reference for longer than reference_max_age (0.1 s of stamps): the controller stops on
+    its own (every brake), latched until the monitor's reset; up to that age it tracks the
+    carried-forward reference. The old rule tracked the held reference for ever."""
+    node, sent, brakes = _ref_node()
+    try:
+        node.on_reference(_ref_at(0))
+        node.on_estimate(_est_at(0))
+        for i in range(1, 26):                 # ages 4 .. 100 ms: tracked
+            node.on_estimate(_est_at(i))
+        assert node.own_stop is None and not any(any(b) for b in brakes)
+        assert node.counters["reference_age_max_ns"] == 100_000_000
+        node.on_estimate(_est_at(26))          # 104 ms
+        assert node.own_stop is not None and "reference lost" in node.own_stop, node.own_stop
+        assert brakes[-1] == [True, True]
+        node.on_reference(_ref_at(27))
+        node.on_estimate(_est_at(27))          # a reference again: the stop stays latched
+        assert node.own_stop is not None and brakes[-1] == [True, True]
+        node.on_safe_stop(SafeStop(active=False, kind="", reason="reset"))
+        assert node.own_stop is None and node.last_ref is None
+        node.on_reference(_ref_at(28))
+        node.on_estimate(_est_at(28))          # tracking again, on the new reference
+        assert brakes[-1] == [False, False]
+        r, e = _ref_at(28), _est_at(28)
+        want = [node.law_input(j, e.position[k], e.velocity[k], 0.0, r.position[k], r.velocity[k], r.acceleration[k])
+                for k, j in enumerate(JOINTS)]
+        np.testing.assert_allclose(sent[-1][1], want, rtol=0, atol=0)
     finally:
         node.destroy_node()

@@ -32,6 +32,15 @@ holds until the first ``/safe_stop`` message, so that a restarted controller can
 the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
 treated as none (hold the measured position); both are counted on ``/diagnostics``.
+
+A reference that has not come within ``reference_timeout`` (wall) of its estimate is late:
+the tick is controlled with the newest earlier reference received, carried forward to the
+tick's stamp at constant acceleration
+(:func:`~reachset_ros.systems.late_reference.extrapolate`, ``qdd_d`` stays in the class),
+counted ``late_reference`` with the largest age used (``reference_age_max_ns``). A newest
+reference older than ``reference_max_age`` (0.1 s of stamp time) is a stop of the
+controller's own ("reference lost": brakes, latched until the monitor's reset), since
+neither holding an old reference nor carrying it further keeps the input in ``U_p``.
 """
 import time
 
@@ -47,6 +56,7 @@ from std_msgs.msg import Float64MultiArray
 from ..conformance import model as mdl
 from ..robot import dynamics as robot
 from ..errors import ReachsetError
+from ..systems import late_reference
 from ..systems.stopping import StopPolicy, StopState, stop_tick
 from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
@@ -58,6 +68,8 @@ DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
 #: a safe stop with no estimate for this long (s, wall) engages every brake at once
 STOP_ESTIMATE_TIMEOUT = 0.1
+#: :meth:`ControllerNode.reference_at`: the newest earlier reference is older than ``reference_max_age``
+LOST = object()
 
 
 class ControllerNode(Node):
@@ -71,8 +83,13 @@ class ControllerNode(Node):
                                                  1e-4, 1.0, read_only=True))
         self.declare_parameter("reference_timeout", 0.02,
                                desc("wait up to this long (s, wall) for the reference of an estimate's stamp; "
-                                    "then the newest earlier reference is used (counted late_reference)",
+                                    "then the newest earlier reference, carried forward to the tick (counted "
+                                    "late_reference; reference_max_age)",
                                     0.0, 1.0))
+        self.declare_parameter("reference_max_age", late_reference.MAX_AGE_S,
+                               desc("a late reference is the newest earlier one carried forward to the tick at "
+                                    "constant acceleration, up to this age (s of stamp time); an older one is no "
+                                    "reference: a stop of the controller's own (reference lost)", 0.0, 10.0))
         self.declare_parameter("wait_for_monitor", False,
                                desc("hold the joints (braking law) until the first /safe_stop message; the monitor "
                                     "publishes its state, latched, when it starts, so a (re)started controller "
@@ -111,7 +128,7 @@ class ControllerNode(Node):
         self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
                          "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
-                         "torque_beyond_limits": 0, "stale_estimate": 0}
+                         "torque_beyond_limits": 0, "stale_estimate": 0, "reference_age_max_ns": 0}
         self.last_command_stamp = None   # stamp of the last command sent (commands never go back in stamp)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
@@ -347,6 +364,7 @@ class ControllerNode(Node):
         if not self.stop_active:
             self.stop = None            # the brakes are released with the next command
             self.stop_received = 0
+            self.last_ref = None        # tracking resumes on new references, none carried over the stop
             if self.own_stop is not None:
                 self.get_logger().info(f"the controller's own stop ({self.own_stop}) is cleared with the reset")
             self.own_stop = None
@@ -400,18 +418,9 @@ class ControllerNode(Node):
         else:
             self.publish_brakes(msg.header.stamp)
 
-    def reference_at(self, stamp, late=False):
-        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; when it has not arrived and
-        ``late``, the newest earlier usable reference (counted ``late_reference``); None when
-        there is none (``no_reference``) or it lacks a joint, has short arrays or non-finite
-        values (``bad_reference``)."""
-        ref = self.refs.pop(stamp, None)
-        if ref is None:
-            if late and self.last_ref is not None and self.last_ref[0] < stamp:
-                self.counters["late_reference"] += 1
-                return self.last_ref[1]
-            self.counters["no_reference"] += 1
-            return None
+    def parse_reference(self, ref):
+        """(q_d, qd_d, qdd_d) of a JointReference in this node's joint order, or None when it
+        lacks a joint, has short arrays or non-finite values (counted ``bad_reference``)."""
         ridx = {n: i for i, n in enumerate(ref.name)}
         n = len(ref.name)
         if (any(j not in ridx for j in self.joints) or len(ref.position) < n or len(ref.velocity) < n
@@ -424,8 +433,45 @@ class ControllerNode(Node):
         if not all(np.all(np.isfinite(a)) for a in out):
             self.counters["bad_reference"] += 1
             return None
-        self.last_ref = (stamp, out)
         return out
+
+    def reference_at(self, stamp, late=False):
+        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when it lacks a joint,
+        has short arrays or non-finite values (``bad_reference``) or none was ever received
+        (``no_reference``).
+
+        When it has not arrived and ``late``: the newest usable reference received with an
+        earlier stamp (arrived on time or not), carried forward to ``stamp`` at constant
+        acceleration (:func:`~reachset_ros.systems.late_reference.extrapolate`; counted
+        ``late_reference``, its age in ``reference_age_max_ns``); :data:`LOST` when that
+        reference is older than ``reference_max_age`` (the caller stops). References older
+        than the one used are dropped (commands never go back in stamp)."""
+        ref = self.refs.pop(stamp, None)
+        if ref is not None:
+            out = self.parse_reference(ref)
+            if out is not None:
+                self.last_ref = (stamp, out)
+            return out
+        if not late:
+            self.counters["no_reference"] += 1
+            return None
+        for s in sorted((s for s in self.refs if s < stamp), reverse=True):
+            out = self.parse_reference(self.refs.pop(s))
+            if out is not None:
+                if self.last_ref is None or s > self.last_ref[0]:
+                    self.last_ref = (s, out)
+                break
+        for s in [s for s in self.refs if s < stamp]:
+            del self.refs[s]
+        if self.last_ref is None or self.last_ref[0] >= stamp:
+            self.counters["no_reference"] += 1
+            return None
+        age = stamp - self.last_ref[0]
+        if not late_reference.usable(self.last_ref[0], stamp, float(self.get_parameter("reference_max_age").value)):
+            return LOST
+        self.counters["late_reference"] += 1
+        self.counters["reference_age_max_ns"] = max(self.counters["reference_age_max_ns"], age)
+        return late_reference.extrapolate(*self.last_ref[1], age * 1e-9)
 
     def on_estimate(self, msg, late=False):
         """Control from the estimate and the reference of the same stamp (paired by stamp: the
@@ -450,7 +496,7 @@ class ControllerNode(Node):
             # a new clock, e.g. a restarted simulation, and is followed)
             self.counters["stale_estimate"] += 1
             return
-        braking = self.stop_active or not self.stop_known or self.own_stop is not None or self.hold_reason is not None
+        braking = self.braking()
         if not late and not braking and stamp not in self.refs:
             if float(self.get_parameter("reference_timeout").value) > 0:
                 self.waiting = (stamp, msg, time.monotonic())
@@ -469,23 +515,16 @@ class ControllerNode(Node):
             self.unusable_estimate(msg, "non-finite values")
             return
         self.last_q = q
-        u_max = self.u_max
+        ref = None if braking else self.reference_at(stamp, late)
+        if ref is LOST:
+            age_ms = (stamp - self.last_ref[0]) * 1e-6
+            self.latch_own_stop(stamp, "reference lost",
+                                f"the newest reference is {age_ms:.0f} ms older than the tick; reference_max_age "
+                                f"{float(self.get_parameter('reference_max_age').value) * 1e3:g} ms")
+            braking = True
         if braking:
-            self.counters["braking_ticks"] += 1
-            if self.stop is None:
-                self.stop = StopState(len(self.joints))
-            before = int(self.stop.engaged.sum())
-            if self.stop_known and self.stop_active or self.own_stop is not None or self.hold_reason is not None:
-                u, _ = stop_tick(self.policy(), self.stop, stamp, q, qd, u_max)
-            else:   # waiting for the monitor's state: hold with the braking law, no brakes
-                u, _ = stop_tick(StopPolicy(category=2), self.stop, stamp, q, qd, u_max)
-            now = int(self.stop.engaged.sum())
-            if now > before:
-                self.counters["brakes_engaged"] += now - before
-                for s, j, why in self.stop.reasons[before:]:
-                    self.get_logger().warning(f"holding brake of {self.joints[j]} engaged at stamp {s}: {why}")
+            u = self.braking_tick(stamp, q, qd)
         else:
-            ref = self.reference_at(stamp, late)
             if ref is None:
                 q_d, qd_d, qdd_d = q.copy(), np.zeros_like(q), np.zeros_like(q)
             else:
@@ -496,6 +535,29 @@ class ControllerNode(Node):
             for i, j in enumerate(self.joints):
                 u[i] = self.law_input(j, q[i], qd[i], d[i], q_d[i], qd_d[i], qdd_d[i])
         self.publish_command(msg.header.stamp, q, qd, u)
+
+    def braking(self):
+        """True while the controller does not track: a safe stop, no stop state yet
+        (``wait_for_monitor``), a stop of its own, or the managed variant's hold."""
+        return self.stop_active or not self.stop_known or self.own_stop is not None or self.hold_reason is not None
+
+    def braking_tick(self, stamp, q, qd):
+        """u_p of a tick while braking (:func:`~reachset_ros.systems.stopping.stop_tick`, the one
+        stop law); brakes it engages are counted and logged."""
+        self.counters["braking_ticks"] += 1
+        if self.stop is None:
+            self.stop = StopState(len(self.joints))
+        before = int(self.stop.engaged.sum())
+        if self.stop_known and self.stop_active or self.own_stop is not None or self.hold_reason is not None:
+            u, _ = stop_tick(self.policy(), self.stop, stamp, q, qd, self.u_max)
+        else:   # waiting for the monitor's state: hold with the braking law, no brakes
+            u, _ = stop_tick(StopPolicy(category=2), self.stop, stamp, q, qd, self.u_max)
+        now = int(self.stop.engaged.sum())
+        if now > before:
+            self.counters["brakes_engaged"] += now - before
+            for s, j, why in self.stop.reasons[before:]:
+                self.get_logger().warning(f"holding brake of {self.joints[j]} engaged at stamp {s}: {why}")
+        return u
 
     def publish_command(self, header_stamp, q, qd, u):
         """``/plant_input`` u_p, ``/brake_command`` and ``/effort_commands`` tau = M(q) u_p + psi(q, qd)."""

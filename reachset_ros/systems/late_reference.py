@@ -1,0 +1,69 @@
+"""A late reference: the controller's reference for a tick whose own reference has not come.
+
+The controller pairs each estimate with the reference of the same stamp (paper eqs. 5-7 act
+on ``q_d, qd_d, qdd_d`` of that tick). When the reference of a tick is late (not received
+within the controller's ``reference_timeout``), the tick is controlled with the newest
+*earlier* reference received, carried forward to the tick's stamp at constant acceleration
+(:func:`extrapolate`)::
+
+    q_d(t + h) = q_d(t) + h qd_d(t) + h^2/2 qdd_d(t),   qd_d(t + h) = qd_d(t) + h qdd_d(t),
+    qdd_d(t + h) = qdd_d(t).
+
+This keeps ``qdd_d`` inside the class the reachable input ``R_u`` is certified for (paper
+Sec. III-A: ``|qdd_d| <= u_ff``) and is exact inside a constant-acceleration phase of a
+trapezoidal move; across a phase change within ``h`` it is off by at most
+``|delta qdd_d| h^2 / 2`` (``<= qdd_max h^2`` for accelerations within ``+-qdd_max``), and within a quintic move by
+``j_max h^3 / 6``. It is an approximation, so its age is bounded: a reference older than
+``max_age`` (:func:`usable`) is no reference; the controller then stops on its own
+("reference lost"). Holding the newest reference instead (``q_d`` standing still while the
+arm moves on, the rule before) took the tracking error outside ``R*_e`` and the input
+outside ``U_p`` in the fifth long fault campaign (docs/reliability.md).
+
+Pure numpy; no ROS import. ``benchmarks/late_reference.py`` measures the extrapolation's
+error on the campaign's reference class against its age.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["MAX_AGE_S", "extrapolate", "newest_before", "usable"]
+
+#: default largest age (s of stamp time) of a reference carried forward to a tick
+MAX_AGE_S = 0.1
+
+
+def extrapolate(q_d, qd_d, qdd_d, h):
+    """The reference ``h`` seconds after ``(q_d, qd_d, qdd_d)``, at constant acceleration.
+
+    Parameters
+    ----------
+    q_d, qd_d, qdd_d : array_like
+        Position, velocity and acceleration of the reference at its stamp.
+    h : float
+        Seconds from the reference's stamp to the tick's (>= 0).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(q_d + h qd_d + h^2/2 qdd_d, qd_d + h qdd_d, qdd_d)`` (new arrays). ``h = 0``
+        returns copies of the inputs, bit for bit.
+    """
+    h = float(h)
+    if not h >= 0.0:
+        raise ValueError(f"a reference is carried forward only: h = {h!r} s")
+    q_d, qd_d, qdd_d = (np.array(a, dtype=np.float64) for a in (q_d, qd_d, qdd_d))
+    if h == 0.0:
+        return q_d, qd_d, qdd_d
+    return q_d + h * qd_d + (0.5 * h * h) * qdd_d, qd_d + h * qdd_d, qdd_d
+
+
+def newest_before(stamps, stamp):
+    """The largest of ``stamps`` (ns) below ``stamp``, or None."""
+    earlier = [s for s in stamps if s < stamp]
+    return max(earlier) if earlier else None
+
+
+def usable(ref_stamp, stamp, max_age_s=MAX_AGE_S):
+    """True when a reference stamped ``ref_stamp`` (ns) may be carried forward to ``stamp``:
+    not newer and at most ``max_age_s`` older."""
+    return ref_stamp is not None and 0 <= stamp - ref_stamp <= int(round(max_age_s * 1e9))
