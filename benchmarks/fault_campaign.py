@@ -84,7 +84,7 @@ def report(score):
 
 def rescore(work, events):
     """The outcomes of ``work/campaign.json`` with the stops judged again from its bags."""
-    from reachset_ros.nodes.campaign_driver import frozen_before_motion, judge_stops
+    from reachset_ros.nodes.campaign_driver import frozen_before_motion, judge_stops, link_onsets
     res = json.loads((work / "campaign.json").read_text())
     if [e.label() for e in events] != [o["event"] for o in res["outcomes"]]:
         sys.exit("fault_campaign: error: the schedule of these arguments is not the campaign's (use its --events, "
@@ -97,6 +97,7 @@ def rescore(work, events):
         outcomes.append(cp.Outcome(e, **{k: v for k, v in fields.items() if k in cp.Outcome.__dataclass_fields__}))
     judge_stops(outcomes)
     frozen_before_motion(outcomes)
+    link_onsets(outcomes)
     return report(cp.score(outcomes, res["info"].get("apparatus_stops", ())))
 
 

@@ -162,3 +162,35 @@ def test_a_frozen_sensor_stopped_before_its_joint_moved_is_not_late(tmp_path):
     assert s_slow["stopped_before_motion"][0]["latency_ms"] == pytest.approx(1488.0)
     assert (s_fast["stops"], s_fast["missed_stops"]) == (0, 1)
     assert "stopped before their joint moved" in cp.table(s_slow)
+
+
+def test_a_link_loss_counts_from_its_first_lost_sample(tmp_path):
+    """The runner's fault_ns of a link loss is when it asked the relay (a service call that
+    takes ticks); the latency counts from the first sample the link lost, read from the bag:
+    the first /joint_states stamp without a /conformance/status."""
+    from reachset_ros import bags
+    from reachset_ros.nodes.campaign_driver import link_onsets
+    T0, DT = 10**18, 4_000_000
+    CS = bags.typestore().types[bags.STATUS_TYPE]
+    path = tmp_path / "block"
+    first_lost = 12
+    with bags.BagWriter(path) as w:
+        for k in range(40):
+            t = T0 + k * DT
+            w.write(bags.JOINT_STATES, bags.joint_state(t, ["a"], [0.0]), t + 1)
+            if k < first_lost or k % 2:       # from tick 12 on, every other sample lost
+                w.write(bags.STATUS_TOPIC, CS(header=bags.header(t), conformant=True, safe_stop_active=False, tick=k,
+                                              horizon=3, active_test_cases=1, name=["a"], margin=np.zeros(1),
+                                              deviation=np.zeros(1), tightest_step=np.zeros(1, np.int32),
+                                              check_duration=0.0, model_id="m"), t + 2, bags.STATUS_TYPE)
+    ev = cp.Event(3, "link", 1.0, "stop", fault="loss", magnitude=0.5)
+    stop = T0 + 16 * DT
+    o = cp.Outcome(ev, fault_ns=T0 + 4 * DT, stops=[(stop, stop + DT, "coverage")], bag=str(path))
+    assert o.latency_ns() == 13 * DT
+    link_onsets([o])
+    assert o.observable_ns == T0 + first_lost * DT
+    assert o.latency_ns() == 5 * DT
+    # no loss between the injection and the stop in the bag: the runner's stamp stays
+    o2 = cp.Outcome(ev, fault_ns=T0 + 4 * DT, stops=[(T0 + 8 * DT, T0 + 9 * DT, "coverage")], bag=str(path))
+    link_onsets([o2])
+    assert o2.observable_ns == 0 and o2.latency_ns() == 5 * DT

@@ -167,8 +167,11 @@ def identified_model(path, horizon=25):
 def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
     model = identified_model(tmp_path / "m.yaml")
     # reset_clean_ticks 0: this test exercises the latch (the reset after a stop with no
-    # data flowing); the rule that a reset waits for clean data has its own test
-    mon = launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 25, "reset_clean_ticks": 0,
+    # data flowing); the rule that a reset waits for clean data has its own test.
+    # max_missing_ticks 125 (0.5 s, the demo's): with 25 (100 ms of wall time) a stall of this
+    # test's publishing loop under a loaded fresh-clone `make test` was a missing_data stop
+    # before the injected fault (seen once at fa62d87)
+    mon = launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125, "reset_clean_ticks": 0,
                                         "window_dir": str(tmp_path / "windows")}, tmp_path)
     status, stops = [], []
     # a listener spun by its own executor thread, so that no status message is missed

@@ -400,6 +400,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             rec = None
         judge_stops(outcomes)
         frozen_before_motion(outcomes)
+        link_onsets(outcomes)
         return outcomes, info
     finally:
         burners.off()
@@ -442,6 +443,30 @@ def frozen_before_motion(outcomes):
             window = [(r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0]) for r in refs.get(o.event.joint, [])]
             fast = [w & (np.abs(r.qd) > cp.FROZEN_MOTION) for w, r in zip(window, refs.get(o.event.joint, []))]
             o.stopped_before_motion = any(w.any() for w in window) and not any(f.any() for f in fast)
+
+
+def link_onsets(outcomes):
+    """The fault's stamp of each link loss that stopped, from its bag: the first sample the
+    link lost (``Outcome.observable_ns``), i.e. the first ``/joint_states`` stamp after the
+    injection without a ``/conformance/status`` of the monitor (one per tick it received).
+    The runner's ``fault_ns`` is the simulation's time when it asked the relay (a parameter
+    service call, which takes ticks on the loaded machine); the first lost sample is the
+    first affected measurement, as ``/sim/fault_onset`` is for the simulator's faults. A status
+    the recorder lost makes the onset earlier, so the latency longer (conservative). Leaves
+    ``observable_ns`` unset when the bag shows no loss before the stop."""
+    from ..bags.series import read_messages
+    todo = [o for o in outcomes if o.event.kind == "link" and o.event.fault == "loss" and o.stops and o.bag]
+    by_bag = {}
+    for o in todo:
+        by_bag.setdefault(o.bag, []).append(o)
+    for bag, group in by_bag.items():
+        js, status = set(), set()
+        for topic, _, m in read_messages([bag], ["/joint_states", "/conformance/status"]):
+            (js if topic == "/joint_states" else status).add(stamp_ns(m.header.stamp))
+        for o in group:
+            lost = [t for t in js - status if o.fault_ns <= t <= o.stops[0][0]]
+            if lost:
+                o.observable_ns = min(lost)
 
 
 def judge_stops(outcomes):

@@ -148,7 +148,10 @@ class Outcome:
     reset_ns: int = 0                 # the simulation's time when the reset after the stop succeeded
     rest: dict = None                 # the stop's effect from the bag (:func:`judge_rest`)
     stale_steps: int = 0              # simulator steps on a stale command during the event (its /diagnostics)
-    observable_ns: int = 0            # frozen sensor: first reference motion of its joint after the fault
+    #: where the fault becomes observable, if later than fault_ns: a frozen sensor's joint's
+    #: first reference motion after the fault; a link loss's first lost sample (from the bag,
+    #: campaign_driver.link_onsets)
+    observable_ns: int = 0
     #: frozen sensor stopped while its joint's reference never exceeded FROZEN_MOTION after the
     #: fault (a slow move: the stop came before the window starts, so it cannot be late; the
     #: latency still counts from the fault)
@@ -158,7 +161,8 @@ class Outcome:
 
     def latency_from(self):
         """The stamp latencies count from: the fault's, or for a frozen sensor the first
-        motion of its joint's reference after it (the fault is not observable before)."""
+        motion of its joint's reference after it (the fault is not observable before), for a
+        link loss its first lost sample."""
         return self.observable_ns or self.fault_ns
 
     def latency_ns(self):
