@@ -1000,10 +1000,10 @@ def test_late_references_are_carried_forward_not_held(ros):
 
 
 def test_a_reference_older_than_reference_max_age_is_a_stop_of_the_controllers_own(ros):
-    """No reference for longer than reference_max_age (0.1 s of stamps): the controller stops on
+    """No reference for longer than reference_max_age (here 0.1 s of stamps): the controller stops on
     its own (every brake), latched until the monitor's reset; up to that age it tracks the
     carried-forward reference. The old rule tracked the held reference for ever."""
-    node, sent, brakes = _ref_node()
+    node, sent, brakes = _ref_node(reference_max_age=0.1)
     try:
         node.on_reference(_ref_at(0))
         node.on_estimate(_est_at(0))

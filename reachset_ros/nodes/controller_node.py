@@ -38,7 +38,7 @@ the tick is controlled with the newest earlier reference received, carried forwa
 tick's stamp at constant acceleration
 (:func:`~reachset_ros.systems.late_reference.extrapolate`, ``qdd_d`` stays in the class),
 counted ``late_reference`` with the largest age used (``reference_age_max_ns``). A newest
-reference older than ``reference_max_age`` (0.1 s of stamp time) is a stop of the
+reference older than ``reference_max_age`` (0.2 s of stamp time) is a stop of the
 controller's own ("reference lost": brakes, latched until the monitor's reset), since
 neither holding an old reference nor carrying it further keeps the input in ``U_p``.
 """
