@@ -25,14 +25,12 @@ def test_extrapolate_zero_age_is_the_reference_and_backwards_is_refused():
         lr.extrapolate(*ref, float("nan"))
 
 
-def test_usable_ages_and_newest_before():
+def test_usable_ages():
     s = 10**18
     assert lr.usable(s, s + 100_000_000, 0.1)
     assert not lr.usable(s, s + 100_000_001, 0.1)
     assert not lr.usable(s + 4_000_000, s, 0.1)       # a newer reference is not carried back
     assert not lr.usable(None, s)
-    assert lr.newest_before([s, s + 8, s + 4, s + 12], s + 9) == s + 8
-    assert lr.newest_before([s + 9], s + 9) is None
 
 
 @pytest.mark.parametrize("kind", ["trapezoidal", "quintic"])

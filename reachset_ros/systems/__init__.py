@@ -14,7 +14,10 @@ numpy/scipy:
   ``R_u`` (:func:`analyze`, paper Sec. III-A); the control law as deployed
   (:class:`FeedbackLaw`), tick-by-tick simulation, the settling time of a transient;
 * :mod:`~reachset_ros.systems.gains` - :class:`Gains`, the one type for a joint's observer
-  and controller parameters (synthesis, model file, ROS parameters), and :func:`check_gains`.
+  and controller parameters (synthesis, model file, ROS parameters), and :func:`check_gains`;
+* :mod:`~reachset_ros.systems.late_reference` - the reference of a tick whose own has not
+  come: the newest earlier one carried forward at constant acceleration, its age bounded;
+* :mod:`~reachset_ros.systems.stopping` - the safe stop's law (categories 1 and 2).
 
 May import: :mod:`reachset_ros.sets` and :mod:`reachset_ros.errors` only.
 """

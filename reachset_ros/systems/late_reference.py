@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_AGE_S", "extrapolate", "newest_before", "usable"]
+__all__ = ["MAX_AGE_S", "extrapolate", "usable"]
 
 #: default largest age (s of stamp time) of a reference carried forward to a tick: 50 ticks.
 #: The sixth long fault campaign had, with 0.1 s, the reference node silent for 152 ms of
@@ -61,12 +61,6 @@ def extrapolate(q_d, qd_d, qdd_d, h):
     if h == 0.0:
         return q_d, qd_d, qdd_d
     return q_d + h * qd_d + (0.5 * h * h) * qdd_d, qd_d + h * qdd_d, qdd_d
-
-
-def newest_before(stamps, stamp):
-    """The largest of ``stamps`` (ns) below ``stamp``, or None."""
-    earlier = [s for s in stamps if s < stamp]
-    return max(earlier) if earlier else None
 
 
 def usable(ref_stamp, stamp, max_age_s=MAX_AGE_S):
