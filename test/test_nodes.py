@@ -1028,3 +1028,21 @@ def test_a_reference_older_than_reference_max_age_is_a_stop_of_the_controllers_o
         np.testing.assert_allclose(sent[-1][1], want, rtol=0, atol=0)
     finally:
         node.destroy_node()
+
+
+def test_a_backlog_of_estimates_finds_its_own_references(ros):
+    """References of 120 ticks (480 ms) arrive before any of their estimates (the observer
+    frozen, the references flowing): every estimate is then controlled with the reference of
+    its own stamp, none late. The controller kept only the newest 50 references (200 ms):
+    the first 70 estimates were late."""
+    node, sent, _ = _ref_node()
+    try:
+        for i in range(120):
+            node.on_reference(_ref_at(i))
+        for i in range(120):
+            node.on_estimate(_est_at(i))
+        assert len(sent) == 120
+        assert node.counters["late_reference"] == 0 and node.counters["no_reference"] == 0
+        assert not node.refs                   # each used, the older dropped
+    finally:
+        node.destroy_node()

@@ -70,6 +70,10 @@ DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 STOP_ESTIMATE_TIMEOUT = 0.1
 #: :meth:`ControllerNode.reference_at`: the newest earlier reference is older than ``reference_max_age``
 LOST = object()
+#: references kept for estimates still to come (2 s at 250 Hz): after a stall, a backlog of
+#: estimates finds its own references (50, before the sixth long campaign, dropped those of a
+#: backlog longer than 200 ms: late ticks, and a "reference lost" stop after a 422 ms freeze)
+REFERENCE_BUFFER = 500
 
 
 class ControllerNode(Node):
@@ -282,7 +286,7 @@ class ControllerNode(Node):
     def on_reference(self, msg):
         stamp = stamp_ns(msg.header.stamp)
         self.refs[stamp] = msg
-        while len(self.refs) > 50:
+        while len(self.refs) > REFERENCE_BUFFER:
             self.refs.pop(next(iter(self.refs)))
         if self.waiting is not None and self.waiting[0] == stamp:
             _, est, _ = self.waiting
@@ -451,6 +455,8 @@ class ControllerNode(Node):
             out = self.parse_reference(ref)
             if out is not None:
                 self.last_ref = (stamp, out)
+                for s in [s for s in self.refs if s < stamp]:
+                    del self.refs[s]     # older than a usable one: never needed again
             return out
         if not late:
             self.counters["no_reference"] += 1
