@@ -424,6 +424,14 @@ def _record(driver, workdir, bag, topics, node, group):
     return rec
 
 
+def _by_bag(outcomes):
+    """``{bag: [outcome, ...]}`` of ``outcomes``, in their order (each bag read once)."""
+    groups = {}
+    for o in outcomes:
+        groups.setdefault(o.bag, []).append(o)
+    return groups
+
+
 def frozen_before_motion(outcomes):
     """Mark the frozen-sensor events that stopped before their joint's reference moved at more
     than :data:`~reachset_ros.sim.campaign.FROZEN_MOTION` after the fault
@@ -432,11 +440,8 @@ def frozen_before_motion(outcomes):
     so the score does not count them late. The runner stops waiting for the motion once a stop
     arrives, so the bag, not the runner's clock, decides (the same for a re-score)."""
     from ..bags.references import read_references
-    todo = [o for o in outcomes if o.event.kind == "sim" and o.event.fault == "frozen" and o.stops and o.bag]
-    by_bag = {}
-    for o in todo:
-        by_bag.setdefault(o.bag, []).append(o)
-    for bag, group in by_bag.items():
+    for bag, group in _by_bag(o for o in outcomes
+                              if o.event.kind == "sim" and o.event.fault == "frozen" and o.stops and o.bag).items():
         refs = read_references([bag], joints=sorted({o.event.joint for o in group}))
         for o in group:
             # the joint's references from the fault to the stop: some recorded, none fast
@@ -455,11 +460,8 @@ def link_onsets(outcomes):
     the recorder lost makes the onset earlier, so the latency longer (conservative). Leaves
     ``observable_ns`` unset when the bag shows no loss before the stop."""
     from ..bags.series import read_messages
-    todo = [o for o in outcomes if o.event.kind == "link" and o.event.fault == "loss" and o.stops and o.bag]
-    by_bag = {}
-    for o in todo:
-        by_bag.setdefault(o.bag, []).append(o)
-    for bag, group in by_bag.items():
+    for bag, group in _by_bag(o for o in outcomes
+                              if o.event.kind == "link" and o.event.fault == "loss" and o.stops and o.bag).items():
         js, status = set(), set()
         for topic, _, m in read_messages([bag], ["/joint_states", "/conformance/status"]):
             (js if topic == "/joint_states" else status).add(stamp_ns(m.header.stamp))
@@ -474,11 +476,8 @@ def judge_stops(outcomes):
     the recorded ``/joint_states`` from the stop's stamp to the reset. A killed simulator has
     no arm left to judge (the restarted one starts at rest): not judged."""
     from ..bags.series import read_messages
-    by_bag = {}
-    for o in outcomes:
-        if o.stops and o.reset_ns and not (o.event.kind == "kill" and o.event.target == "sim_node"):
-            by_bag.setdefault(o.bag, []).append(o)
-    for bag, group in by_bag.items():
+    for bag, group in _by_bag(o for o in outcomes if o.stops and o.reset_ns
+                              and not (o.event.kind == "kill" and o.event.target == "sim_node")).items():
         t, q, qd, names = [], [], [], None
         for _, _, m in read_messages([bag], ["/joint_states"]):
             if names is None:

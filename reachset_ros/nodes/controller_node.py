@@ -439,6 +439,14 @@ class ControllerNode(Node):
             return None
         return out
 
+    def pop_refs_before(self, stamp):
+        """Remove the received references stamped before ``stamp``; returns them as
+        ``(stamp, msg)``, newest first."""
+        older = sorted(((s, m) for s, m in self.refs.items() if s < stamp), key=lambda x: x[0], reverse=True)
+        for s, _ in older:
+            del self.refs[s]
+        return older
+
     def reference_at(self, stamp, late=False):
         """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when it lacks a joint,
         has short arrays or non-finite values (``bad_reference``) or none was ever received
@@ -455,20 +463,17 @@ class ControllerNode(Node):
             out = self.parse_reference(ref)
             if out is not None:
                 self.last_ref = (stamp, out)
-                for s in [s for s in self.refs if s < stamp]:
-                    del self.refs[s]     # older than a usable one: never needed again
+                self.pop_refs_before(stamp)     # older than a usable one: never needed again
             return out
         if not late:
             self.counters["no_reference"] += 1
             return None
-        for s in sorted((s for s in self.refs if s < stamp), reverse=True):
-            out = self.parse_reference(self.refs.pop(s))
+        for s, older in self.pop_refs_before(stamp):
+            out = self.parse_reference(older)
             if out is not None:
                 if self.last_ref is None or s > self.last_ref[0]:
                     self.last_ref = (s, out)
                 break
-        for s in [s for s in self.refs if s < stamp]:
-            del self.refs[s]
         if self.last_ref is None or self.last_ref[0] >= stamp:
             self.counters["no_reference"] += 1
             return None
