@@ -5,10 +5,15 @@ from pathlib import Path
 
 import pytest
 
+from reachset_ros.launch import use_dds_profiles
+
 # Real DDS, but only on this host and in a domain of our own, so that parallel test runs
 # (and other ROS 2 programs on the machine) do not see each other.
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
+# and the suite's Fast DDS discovery profile, as every node and driver uses it, for the
+# tests' own participants and every process they start (docs/reliability.md, start-up discovery)
+use_dds_profiles()
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"

@@ -39,7 +39,7 @@ from ..bags.references import read_references
 from ..robot.lwa4p import default_nominal_path
 from ..sim import campaign as cp
 from ..sim.simulator import DT as SIM_DT
-from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns
+from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns, use_dds_profiles
 from .demo_driver import CORE_TOPICS, INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, DemoDriver
 
 #: after a reset the arm must track this long (simulated s) without a stop before the next event
@@ -146,6 +146,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
     group = []
     own = not rclpy.ok()
     if own:
+        use_dds_profiles()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     driver = DemoDriver()
     lis = CampaignListener(driver)

@@ -15,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from rclpy.signals import SignalHandlerOptions
 
 from ..errors import ReachsetError
+from ..launch import use_dds_profiles  # noqa: F401  (spin_node; the drivers import it from here)
 
 try:
     from rclpy.experimental import EventsExecutor
@@ -83,6 +84,7 @@ def spin_node(node_cls, args=None, **kwargs):
     if "-h" in own or "--help" in own:
         print(node_help(node_cls))        # before rclpy: nothing starts
         sys.exit(0)
+    use_dds_profiles()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = node_cls(**kwargs)

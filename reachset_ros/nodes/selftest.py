@@ -15,9 +15,12 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from reachset_msgs.msg import PlantInput
 
+from .common import use_dds_profiles
+
 
 def run_selftest(timeout: float = 30.0, value: float = 1.5) -> dict:
     """Run the exchange; return counts and the observed values. Raises RuntimeError on failure."""
+    use_dds_profiles()
     env = dict(os.environ)
     talker = subprocess.Popen([sys.executable, "-m", "reachset_ros.nodes.talker"], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
