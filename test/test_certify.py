@@ -21,23 +21,30 @@ SETS = mdl.JointSets((0.0348, 3.59), (3.49e-5,), (0.0,) * 5, (0.0,), 0, 125)
 PLANT = lwa4p_joint_plant()
 
 
+#: a synthesis record with U_e,ff = 0 (as for Method 1's loop, Appendix B): the tests that use
+#: it are about the inflation; U_e,ff has tests of its own below
+ZERO_U_E_FF = {"reference_error": {"u_e_ff": [0.0, 0.0]}}
+
+
 def _model(path, inflation, extra=None, gains=TABLE_II):
     js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
-                       gains={**gains.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=extra or {})
+                       gains={**gains.model_dict(), "u_max": 26.0, "u_ff": 2.0},
+                       extra=ZERO_U_E_FF if extra is None else extra)
     mdl.save(mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
                                   {"arm_1_joint": js}, inflation), path)
     return path
 
 
 def test_table_ii_at_inflation_one_is_refused_naming_r_u_and_u_p():
-    """HEAD's check_gains used the uninflated alpha (R_u radius 15.68) and accepted."""
-    ok, why, _ = check_gains(TABLE_II, SETS, u_max=26.0, u_ff=2.0, plant=PLANT, inflation=1.0)
+    """HEAD's check_gains used the uninflated alpha (R_u radius 15.68) and accepted. (U_e,ff = 0
+    given: the paper's R_u alone.)"""
+    ok, why, _ = check_gains(TABLE_II, SETS, u_max=26.0, u_ff=2.0, plant=PLANT, inflation=1.0, u_e_ff=(0.0, 0.0))
     assert not ok
     assert "R*_u = [-29.35, 29.35]" in why and "radius 29.35" in why and "U_p = +-26" in why
-    c = certify(TABLE_II, SETS, 1.0, 26.0, 2.0, plant=PLANT)
+    c = certify(TABLE_II, SETS, 1.0, 26.0, 2.0, u_e_ff=(0.0, 0.0), plant=PLANT)
     assert not c.ok and c.ru[1] == pytest.approx(29.35, abs=5e-3)
     # R_u is linear in alpha: the disturbance part doubles
-    c0 = certify(TABLE_II, SETS, 0.0, 26.0, 2.0, plant=PLANT)
+    c0 = certify(TABLE_II, SETS, 0.0, 26.0, 2.0, u_e_ff=(0.0, 0.0), plant=PLANT)
     assert c0.ok and c0.reason == ""
     assert c.ru[1] - 2.0 == pytest.approx(2 * (c0.ru[1] - 2.0), rel=1e-12)
 
@@ -55,11 +62,14 @@ def test_recorded_u_e_ff_counts():
 
 
 def test_largest_certified_inflation():
-    i = max_certified_inflation(TABLE_II, SETS, 26.0, 2.0, plant=PLANT)
+    zero = (0.0, 0.0)
+    i = max_certified_inflation(TABLE_II, SETS, 26.0, 2.0, u_e_ff=zero, plant=PLANT)
     assert 0.75 < i < 0.76
-    assert certify(TABLE_II, SETS, i, 26.0, 2.0, plant=PLANT).ok
-    assert not certify(TABLE_II, SETS, i * (1 + 1e-5), 26.0, 2.0, plant=PLANT).ok
-    assert max_certified_inflation(TABLE_II, SETS, 10.0, 2.0, plant=PLANT) is None
+    assert certify(TABLE_II, SETS, i, 26.0, 2.0, u_e_ff=zero, plant=PLANT).ok
+    assert not certify(TABLE_II, SETS, i * (1 + 1e-5), 26.0, 2.0, u_e_ff=zero, plant=PLANT).ok
+    assert max_certified_inflation(TABLE_II, SETS, 10.0, 2.0, u_e_ff=zero, plant=PLANT) is None
+    # U_e,ff takes room: a smaller inflation fits
+    assert max_certified_inflation(TABLE_II, SETS, 26.0, 2.0, u_e_ff=(-2.0, 2.0), plant=PLANT) < i
 
 
 def test_largest_certified_inflation_of_a_model(tmp_path):
@@ -158,5 +168,45 @@ def test_controller_gate_refuses_new_gains_the_model_cannot_certify(tmp_path, mo
             assert list(node.get_parameter("omega").value) == [24.4]
         finally:
             node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+def test_a_model_without_u_e_ff_is_not_certified_with_zero(tmp_path, monkeypatch):
+    """A model from `reachset identify` records no U_e,ff. HEAD certified gains with U_e,ff = 0:
+    omega 20 over these sets has R_u radius 23.66 < 26 and was accepted, although the loop's
+    reference error needs up to 6.89 rad/s^2 more for the references U_ff admits. Now certify
+    refuses without a bound, and the nodes' gate bounds it over every reference of U_ff
+    (qdd_max = u_ff, step_max = 2 u_ff) and refuses these gains; omega 10 fits."""
+    from reachset_ros.nodes.controller_node import ControllerNode
+    from reachset_ros.synthesis.reference_error import ReferenceClass, class_reference_error, u_e_ff_for_gains
+    from reachset_ros.systems.gains import NO_U_E_FF, certify_pair
+    js = mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, 25)     # no record, no gains
+    model = mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 25,
+                                 {"arm_1_joint": js}, 0.0)
+    fast, slow = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0), Gains(omega=10.0, zeta=1.0, h1=15.0, h2=30.0)
+    c = certify(fast, js, 0.0, 26.0, 2.0, plant=PLANT)
+    assert not c.ok and c.reason == NO_U_E_FF and c.u_e_ff is None
+    assert certify(fast, js, 0.0, 26.0, 2.0, u_e_ff=(0.0, 0.0), plant=PLANT).ru[1] < 26.0   # HEAD's number
+    want = class_reference_error(PLANT, *fast.build(0.004), ReferenceClass(qdd_max=2.0, step_max=4.0))
+    assert u_e_ff_for_gains(fast, js, PLANT, 2.0) == (want.u_lo, want.u_hi)
+    assert want.u_hi > 6.0
+    with pytest.raises(ReachsetError, match=r"arm_1_joint: reachable input R\*_u .*U_e,ff = \[-6\.89, 6\.89\]"):
+        certify_pair({"arm_1_joint": fast}, model, [26.0], 2.0, 0.004, u_e_ff_for=u_e_ff_for_gains)
+    with pytest.raises(ReachsetError, match="U_e,ff .* is unknown"):
+        certify_pair({"arm_1_joint": slow}, model, [26.0], 2.0, 0.004)        # no bound given: refused
+    pc = certify_pair({"arm_1_joint": slow}, model, [26.0], 2.0, 0.004, u_e_ff_for=u_e_ff_for_gains)
+    ue = pc.certified["arm_1_joint"].u_e_ff
+    assert ue[1] > 5.0 and pc.certified["arm_1_joint"].ru[1] < 26.0
+    # the controller node (real rclpy) refuses to start with omega 20 under such a model
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "identified.yaml"
+    mdl.save(model, path)
+    rclpy.init(args=["--ros-args", "-p", f"model_file:={path}", "-p", "joints:=[arm_1_joint]",
+                     "-p", "u_max:=[26.0]", "-p", "omega:=[20.0]", "-p", "zeta:=[1.0]",
+                     "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
+    try:
+        with pytest.raises(ReachsetError, match=r"U_e,ff = \[-6\.89, 6\.89\]"):
+            ControllerNode()
     finally:
         rclpy.shutdown()

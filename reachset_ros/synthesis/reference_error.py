@@ -664,23 +664,41 @@ def class_reference_error(plant, observer, controller, reference_class, errors=(
     return ReferenceErrorSets(-e, e.copy(), -u, u, a, 0, 0)
 
 
-def u_e_ff_for_gains(gains, joint_sets, plant):
-    """``U_e,ff = (lo, hi)`` of ``gains`` over the reference class a model joint records, or None.
+def u_e_ff_for_gains(gains, joint_sets, plant, u_ff=None):
+    """``U_e,ff = (lo, hi)`` of ``gains`` for a model joint, or None (paper Appendix B).
 
-    For the gate of a live gain change (:func:`reachset_ros.systems.gains.certify_pair`):
-    ``U_e,ff`` (Appendix B) depends on the loop, and the model records it for its own gains
-    only. When ``gains`` are the model's, or the model records no reference class (the
-    synthesis bounded recorded references, which the model does not hold), returns None:
-    the recorded value, or a refusal (:func:`~reachset_ros.systems.gains.recorded_for_other_gains`).
-    Otherwise the class's sound bound (:func:`class_reference_error`) for the new loop; None
-    when it does not converge (refused then, too).
+    For the gate of the nodes (:func:`reachset_ros.systems.gains.certify_pair`): ``U_e,ff``
+    depends on the loop, and a synthesised model records it for its own gains only.
+
+    * The model's own gains, or a synthesis record without a reference class (it bounded
+      recorded references, which the model does not hold): None, i.e. the recorded value,
+      or a refusal (:func:`~reachset_ros.systems.gains.recorded_for_other_gains`).
+    * A recorded reference class: the class's sound bound (:func:`class_reference_error`)
+      for these gains.
+    * No record at all (a model from ``reachset identify``): the class of every reference
+      ``U_ff = [-u_ff, u_ff]`` admits, ``qdd_max = u_ff`` and ``step_max = 2 u_ff`` (which
+      the level bound already implies, :class:`ReferenceClass`), for these gains; None
+      without ``u_ff`` (then :func:`~reachset_ros.systems.gains.certify` refuses,
+      :data:`~reachset_ros.systems.gains.NO_U_E_FF`). Before, such a model certified its
+      gains with ``U_e,ff = 0``.
+
+    None also when the bound does not converge (refused then, too).
     """
-    rc = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}).get("reference_class")
-    if not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets):
+    rec = (getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}
+    rc = rec.get("reference_class")
+    if rec.get("u_e_ff") is not None:
+        if not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets):
+            return None
+        cls = ReferenceClass.from_dict(rc)
+    elif rc:
+        cls = ReferenceClass.from_dict(rc)
+    elif u_ff is not None:
+        cls = ReferenceClass(qdd_max=abs(float(u_ff)))
+    else:
         return None
     obs, ctrl = gains.build(plant.dt)
     try:
-        r = class_reference_error(plant, obs, ctrl, ReferenceClass.from_dict(rc))
+        r = class_reference_error(plant, obs, ctrl, cls)
     except NotStableError:
         return None
     return (float(r.u_lo), float(r.u_hi))

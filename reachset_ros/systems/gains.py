@@ -23,7 +23,7 @@ from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
 
-__all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff",
+__all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff", "NO_U_E_FF",
            "recorded_for_other_gains", "is_model_gains",
            "certified_inflation", "model_limits",
            "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS"]
@@ -160,14 +160,24 @@ class Certificate:
     u_e_ff: tuple
 
 
-def recorded_u_e_ff(joint_sets):
-    """``U_e,ff = [lo, hi]`` of the model's synthesis record (paper Appendix B), ``(0, 0)`` if none.
+#: Why :func:`certify` refuses a model joint that records no U_e,ff when the caller gives none.
+NO_U_E_FF = ("U_e,ff (the reference error's input part, paper Appendix B) is unknown: the model records none "
+             "(a model from `reachset identify`) and no bound was given, and it is not zero (one-tick delays, "
+             "the observer's lag); the nodes bound it over every reference U_ff admits")
 
-    Written by the synthesis into ``JointSets.extra["reference_error"]["u_e_ff"]``.
+
+def recorded_u_e_ff(joint_sets):
+    """``U_e,ff = [lo, hi]`` of the model's synthesis record (paper Appendix B), None if none.
+
+    Written by the synthesis into ``JointSets.extra["reference_error"]["u_e_ff"]``; a model
+    from ``reachset identify`` has none (the reference error is a property of a closed loop,
+    which identification does not choose). Never taken as zero: :func:`certify` refuses
+    without it, the nodes' gate bounds it over the references ``U_ff`` admits
+    (:func:`reachset_ros.synthesis.reference_error.u_e_ff_for_gains`).
     """
     rec = ((getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}).get("u_e_ff")
     if rec is None:
-        return (0.0, 0.0)
+        return None
     try:
         lo, hi = (float(v) for v in rec)
     except (TypeError, ValueError):
@@ -214,7 +224,8 @@ def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: floa
     Sec. III-A and Appendix B; ``U_ff = [-u_ff, u_ff]``; ``U_e,ff`` the reference feedforward
     error, by default the model's synthesis record, :func:`recorded_u_e_ff`, which holds only
     for the gains it was synthesised with: other gains without ``u_e_ff`` are refused,
-    :func:`recorded_for_other_gains`), with the sound
+    :func:`recorded_for_other_gains`, and a model without a record is refused, :data:`NO_U_E_FF`,
+    never certified with ``U_e,ff = 0``), with the sound
     outer bound of :func:`~reachset_ros.systems.closedloop.analyze` (outward rounded). This is
     the one certification of gains against sets: ``check_gains``, the controller node's gate
     (model load, gain or ``u_max`` change), and the demo's monitored model all call it.
@@ -233,6 +244,8 @@ def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: floa
         other = recorded_for_other_gains(gains, joint_sets)
         if other:
             return Certificate(False, other, None, None, inflation, ue)
+        if ue is None:
+            return Certificate(False, NO_U_E_FF, None, None, inflation, None)
     plant = plant or lwa4p_joint_plant()
     cl = closedloop.close_loop(plant, gains.build_observer(plant.dt), gains.build_controller())
     st = closedloop.stability(cl)
@@ -358,11 +371,12 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
         The nodes' tick period; a model must have the same.
     allow_uncertified : bool
     u_e_ff_for : callable, optional
-        ``u_e_ff_for(gains, joint_sets, plant) -> (lo, hi) or None``: the ``U_e,ff`` of
-        gains other than the model's (the nodes pass
+        ``u_e_ff_for(gains, joint_sets, plant, u_ff) -> (lo, hi) or None``: the ``U_e,ff`` of
+        gains other than the model's, or of a model that records none (the nodes pass
         :func:`reachset_ros.synthesis.reference_error.u_e_ff_for_gains`, which bounds it over
-        the model's reference class); None keeps the recorded one, which :func:`certify`
-        accepts only for the model's own gains.
+        the model's reference class, or over every reference ``U_ff`` admits); None keeps the
+        recorded one, which :func:`certify` accepts only for the model's own gains, and
+        refuses a model without one.
 
     Returns
     -------
@@ -386,7 +400,7 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
             raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
         js = model.joints.get(j) if model is not None else None
         if js is not None:
-            ue = u_e_ff_for(g, js, model.plant) if u_e_ff_for is not None else None
+            ue = u_e_ff_for(g, js, model.plant, u_ff) if u_e_ff_for is not None else None
             c = certify(g, js, model.inflation, float(u_max[i]), u_ff, u_e_ff=ue, plant=model.plant)
             if not c.ok:
                 raise ReachsetError(f"joint {j}: {c.reason}")
