@@ -85,7 +85,7 @@ def report(score):
 
 def rescore(work, events):
     """The outcomes of ``work/campaign.json`` with the stops judged again from its bags."""
-    from reachset_ros.nodes.campaign_driver import frozen_before_motion, judge_stops, link_onsets
+    from reachset_ros.nodes.campaign_driver import bag_stops, frozen_before_motion, judge_stops, link_onsets
     res = json.loads((work / "campaign.json").read_text())
     if [e.label() for e in events] != [o["event"] for o in res["outcomes"]]:
         sys.exit("fault_campaign: error: the schedule of these arguments is not the campaign's (use its --events, "
@@ -96,6 +96,7 @@ def rescore(work, events):
         fields["stops"] = [tuple(x) for x in fields["stops"]]
         fields["quiet_stops"] = [tuple(x) for x in fields["quiet_stops"]]
         outcomes.append(cp.Outcome(e, **{k: v for k, v in fields.items() if k in cp.Outcome.__dataclass_fields__}))
+    bag_stops(outcomes)
     judge_stops(outcomes)
     frozen_before_motion(outcomes)
     link_onsets(outcomes)

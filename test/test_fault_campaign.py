@@ -194,3 +194,37 @@ def test_a_link_loss_counts_from_its_first_lost_sample(tmp_path):
     o2 = cp.Outcome(ev, fault_ns=T0 + 4 * DT, stops=[(T0 + 8 * DT, T0 + 9 * DT, "coverage")], bag=str(path))
     link_onsets([o2])
     assert o2.observable_ns == 0 and o2.latency_ns() == 5 * DT
+
+
+def test_a_stop_the_runner_did_not_wait_for_is_read_from_the_bag(tmp_path):
+    """The seventh long run: a frozen sensor's joint first moved 8.5 s after the fault, the
+    stuck-sensor rule stopped 20 ms later, but the runner's wall-time guard had started with
+    the event and had lapsed during the wait for motion, so it recorded a miss. ``bag_stops``
+    (run by ``--rescore``) takes the first active /safe_stop of the bag inside the event's
+    window; a stop after the window stays a miss."""
+    from reachset_ros import bags
+    from reachset_ros.nodes.campaign_driver import bag_stops
+    T0, DT = 10**18, 4_000_000
+    SS = bags.typestore().types[bags.SAFE_STOP_TYPE]
+    ev = cp.Event(42, "sim", 1.0, "stop", fault="frozen", joint="a")
+    observable = T0 + 2125 * DT                       # 8.5 s after the fault
+
+    def outcome(stop_tick):
+        path = tmp_path / f"block{stop_tick}"
+        with bags.BagWriter(path) as w:
+            for k, active in ((0, False), (stop_tick, True), (stop_tick + 1, True)):
+                t = T0 + k * DT
+                w.write(bags.SAFE_STOP_TOPIC, SS(header=bags.header(t), active=active, reason="stuck sensor",
+                                                 kind="invalid_sample" if active else "reset", joint="a", step=-1,
+                                                 test_case_start_ns=0, deviation=0.0, bound=0.0, window_bag=""),
+                        t + 1, bags.SAFE_STOP_TYPE)
+        return cp.Outcome(ev, fault_ns=T0, observable_ns=observable, bag=str(path),
+                          note="no stop within the detection window")
+
+    inside, late = outcome(2130), outcome(2125 + 300)     # 20 ms and 1.2 s after the motion
+    bag_stops([inside, late])
+    assert inside.stops == [(T0 + 2130 * DT, T0 + 2130 * DT, "invalid_sample: stuck sensor")]
+    assert inside.latency_ns() == 5 * DT and "read from the bag" in inside.note
+    assert late.stops == [] and late.note == "no stop within the detection window"
+    s = cp.score([inside, late])
+    assert (s["stops"], s["missed_stops"]) == (1, 1)
