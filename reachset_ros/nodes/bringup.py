@@ -92,10 +92,9 @@ class GraphWatch:
     def __init__(self, domain_id: int):
         import rclpy
         from rclpy.signals import SignalHandlerOptions
-        from .common import use_dds_profiles
         self.rclpy = rclpy
         self.context = rclpy.Context()
-        use_dds_profiles()
+        launch.use_dds_profiles()
         rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("reachset_up", context=self.context, start_parameter_services=False,
                                       enable_rosout=False)

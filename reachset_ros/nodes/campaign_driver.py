@@ -39,9 +39,12 @@ from ..bags.references import read_references
 from ..robot.lwa4p import default_nominal_path
 from ..sim import campaign as cp
 from ..sim.simulator import DT as SIM_DT
-from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns, use_dds_profiles
+from .common import SAFE_STOP_QOS, TICK_QOS, set_remote_parameters, stamp_ns
 from .demo_driver import CORE_TOPICS, INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, DemoDriver
 
+#: ``Outcome.note`` of a fault that must stop when the runner saw no stop in its window
+#: (:func:`bag_stops` looks in the bag for one it did not wait for)
+NO_STOP_NOTE = "no stop within the detection window"
 #: after a reset the arm must track this long (simulated s) without a stop before the next event
 RECOVER_S = 2.0
 #: after a stop, the reset waits until this long (simulated s) after the stop's stamp (judge_rest)
@@ -146,7 +149,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
     group = []
     own = not rclpy.ok()
     if own:
-        use_dds_profiles()
+        launch.use_dds_profiles()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     driver = DemoDriver()
     lis = CampaignListener(driver)
@@ -299,7 +302,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             o.note = f"unobservable: the joint's reference did not move within {cp.FROZEN_WAIT_S:g} s"
             log(f"[campaign]   {o.note}")
         elif ev.expect == "stop":
-            end = (o.observable_ns or o.fault_ns) + int(cp.detect_within_s(ev) * 1e9)
+            end = o.latency_from() + int(cp.detect_within_s(ev) * 1e9)
             # (from the window's start: a frozen sensor's joint may first move seconds after the
             # event began; the seventh long run lost a stop 20 ms after such a motion, 8.5 s in)
             wall_end = window_wall + cp.DETECT_WITHIN_WALL_S
@@ -323,7 +326,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                 f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
                 f"{o.braking_ticks} ticks after its arrival")
         elif ev.expect == "stop" and not o.note:
-            o.note = "no stop within the detection window"
+            o.note = NO_STOP_NOTE
             log(f"[campaign]   MISSED: no stop within {cp.detect_within_s(ev)} s")
         if o.stops or ev.kind in ("sim", "kill", "link"):
             recover(ev, o)
@@ -463,11 +466,11 @@ def bag_stops(outcomes):
     long run, counted from the event's start instead of the window's)."""
     from ..bags.series import read_messages
     for bag, group in _by_bag(o for o in outcomes if o.event.expect == "stop" and not o.stops and o.bag
-                              and o.note == "no stop within the detection window").items():
+                              and o.note == NO_STOP_NOTE).items():
         active = sorted((stamp_ns(m.header.stamp), m.kind, m.reason)
                         for _, _, m in read_messages([bag], ["/safe_stop"]) if m.active)
         for o in group:
-            end = (o.observable_ns or o.fault_ns) + int(cp.detect_within_s(o.event) * 1e9)
+            end = o.latency_from() + int(cp.detect_within_s(o.event) * 1e9)
             hit = [a for a in active if o.fault_ns <= a[0] <= end]
             if hit:
                 st, kind, reason = hit[0]

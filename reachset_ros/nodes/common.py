@@ -15,7 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from rclpy.signals import SignalHandlerOptions
 
 from ..errors import ReachsetError
-from ..launch import use_dds_profiles  # noqa: F401  (spin_node; the drivers import it from here)
+from ..launch import use_dds_profiles
 
 try:
     from rclpy.experimental import EventsExecutor

@@ -36,7 +36,7 @@ from ..robot.dynamics import JOINT_NAMES, U_REF
 from ..robot.lwa4p import default_nominal_path
 from ..synthesis.config import config_path, load_config
 from ..systems.gains import certified_inflation
-from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns, use_dds_profiles
+from .common import SAFE_STOP_QOS, set_remote_parameters, stamp_ns
 
 JOINTS = list(JOINT_NAMES)
 CORE_TOPICS = ["/joint_states", "/plant_input", "/reference", "/observer/estimate", "/effort_commands"]
@@ -158,7 +158,7 @@ def run_demo(workdir: Path, record: Path, duration: float, fault_at: float | Non
     procs = []
     own = not rclpy.ok()
     if own:   # signals are the caller's (StopRequest), not rclpy's (which would shut the context down)
-        use_dds_profiles()
+        launch.use_dds_profiles()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     driver = DemoDriver(stop)
     try:

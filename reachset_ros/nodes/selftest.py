@@ -15,7 +15,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from reachset_msgs.msg import PlantInput
 
-from .common import use_dds_profiles
+from ..launch import use_dds_profiles
 
 
 def run_selftest(timeout: float = 30.0, value: float = 1.5) -> dict:

@@ -686,11 +686,10 @@ def u_e_ff_for_gains(gains, joint_sets, plant, u_ff=None):
     """
     rec = (getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}
     rc = rec.get("reference_class")
-    if rec.get("u_e_ff") is not None:
-        if not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets):
-            return None
-        cls = ReferenceClass.from_dict(rc)
-    elif rc:
+    if rec.get("u_e_ff") is not None and (
+            not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets)):
+        return None
+    if rc:
         cls = ReferenceClass.from_dict(rc)
     elif u_ff is not None:
         cls = ReferenceClass(qdd_max=abs(float(u_ff)))
