@@ -45,6 +45,9 @@ def main(argv=None):
     ap.add_argument("--rescore", default=None, metavar="WORK",
                     help="score an earlier campaign again from its campaign.json and bags (the same --events, "
                          "--seed, --quiet, --burners, --kinds as its run): each stop's effect judged anew")
+    ap.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                    help="run the loop's and the stop path's nodes under SCHED_FIFO at N (1-99; needs "
+                         "CAP_SYS_NICE; default 0: the default policy, as the burners)")
     ap.add_argument("--short", action="store_true", help="the make-test variant: 10 events, no burners")
     a = ap.parse_args(argv)
     if a.short:
@@ -62,6 +65,7 @@ def main(argv=None):
     print(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} workdir {work}", file=sys.stderr, flush=True)
     outcomes, info = run_campaign(work, events, seed=a.seed, train=a.train, model=a.model,
                                   train_runs=a.train_runs, calibrate_margin=a.calibrate_margin,
+                                  realtime_priority=a.realtime_priority,
                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     score = cp.score(outcomes, info.get("apparatus_stops", ()))
     (work / "campaign.json").write_text(json.dumps({"info": info, "score": score,

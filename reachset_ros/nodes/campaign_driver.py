@@ -136,12 +136,14 @@ class Burners:
 
 
 def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=None, train_runs=3,
-                 calibrate_margin=0):
+                 calibrate_margin=0, realtime_priority=0):
     """Run ``events`` (:func:`reachset_ros.sim.campaign.schedule`); returns ``(outcomes, info)``.
 
     ``model``: a model file for the monitor (skips the training recordings and the
     identification); ``calibrate_margin``: grid steps of inflation above the cross-validated
-    one (``identify --calibrate-margin``); ``info`` has the model, its inflation (and the
+    one (``identify --calibrate-margin``); ``realtime_priority``: SCHED_FIFO priority of the
+    simulator, reference, observer, controller, monitor and relay (0: the default policy;
+    :mod:`.scheduling`); ``info`` has the model, its inflation (and the
     cross-validated one) and the nodes' logs directory."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
@@ -168,8 +170,13 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
         # the monitor's /joint_states pass through the relay: the link events drop or delay them
         "relay_node": {"input_topic": "/joint_states", "output_topic": RELAYED, "seed": seed},
     }
+    if realtime_priority:
+        # the loop and the stop path (the relay stands for the monitor's link) preempt the
+        # burners; the recorder and this driver keep the default policy
+        for name in ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node", "relay_node"):
+            params[name]["realtime_priority"] = int(realtime_priority)
     remaps = {"monitor_node": {"joint_states": RELAYED}}
-    info = {"workdir": str(workdir), "seed": seed}
+    info = {"workdir": str(workdir), "seed": seed, "realtime_priority": int(realtime_priority)}
     outcomes = []
     rec = None
 

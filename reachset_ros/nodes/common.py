@@ -16,6 +16,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..errors import ReachsetError
 from ..launch import use_dds_profiles
+from . import scheduling
 
 try:
     from rclpy.experimental import EventsExecutor
@@ -59,6 +60,13 @@ def to_stamp(msg_stamp, ns: int):
     return msg_stamp
 
 
+def declare_realtime_priority(node):
+    """Declare ``realtime_priority`` (read-only; :mod:`.scheduling`), which
+    :func:`spin_node` applies to the process once the node and its executor exist."""
+    node.declare_parameter(scheduling.PARAMETER, 0,
+                           desc(scheduling.DESCRIPTION, 0, 99, integer=True, read_only=True))
+
+
 def desc(description, lo=None, hi=None, integer=False, read_only=False):
     """A ParameterDescriptor with an optional range."""
     d = ParameterDescriptor(description=description, read_only=read_only)
@@ -93,9 +101,21 @@ def spin_node(node_cls, args=None, **kwargs):
         print(f"{node_cls.__name__}: error: {e}", file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
-    log_start_summary(node)
     executor = make_executor()
     executor.add_node(node)
+    if node.has_parameter(scheduling.PARAMETER):
+        priority = int(node.get_parameter(scheduling.PARAMETER).value)
+        try:
+            n = scheduling.set_realtime(priority)
+        except ReachsetError as e:
+            print(f"{node_cls.__name__}: error: {e}", file=sys.stderr)
+            executor.shutdown(timeout_sec=1.0)
+            node.destroy_node()
+            rclpy.try_shutdown()
+            sys.exit(2)
+        if n:
+            node.get_logger().info(f"SCHED_FIFO priority {priority} on the process's {n} threads")
+    log_start_summary(node)
     node.callback_errors = 0
     try:
         spin_until_signal(node, executor)

@@ -58,7 +58,7 @@ from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems import late_reference
 from ..systems.stopping import StopPolicy, StopState, stop_tick
-from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
+from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
@@ -79,6 +79,7 @@ REFERENCE_BUFFER = 500
 class ControllerNode(Node):
     def __init__(self, **node_kwargs):
         super().__init__("controller_node", **node_kwargs)
+        declare_realtime_priority(self)
         self.declare_parameter("joints", DEFAULT_JOINTS, desc("joints; /effort_commands uses this order", read_only=True))
         self.declare_parameter("robot_params", "", desc("identified robot parameters YAML ('' = URDF values)",
                                                         read_only=True))

@@ -41,7 +41,7 @@ from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorMod
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
 from .audit import log_privileged
-from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, desc, spin_node, stamp_ns, to_stamp
+from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, declare_realtime_priority, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
 #: burst or a stalled executor costs latency, not ticks (samples wait in the DDS reader).
@@ -317,6 +317,7 @@ class MonitorNode(Node):
 
     def __init__(self):
         super().__init__("monitor_node")
+        declare_realtime_priority(self)
         self.declare_parameter("model_file", "", desc("conformance model YAML (identify/synthesize output)"))
         self.declare_parameter("joints", [""], desc("joints to monitor (default: all of the model)"))
         self.declare_parameter("max_missing_ticks", 125, desc("missing-data limit: ticks without a complete sample, or "

@@ -24,7 +24,7 @@ from sensor_msgs.msg import JointState
 from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..robot.dynamics import JOINT_NAMES
-from .common import TICK_QOS, desc, spin_node, stamp_ns
+from .common import TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
@@ -33,6 +33,7 @@ from .gain_params import (current_values, declare_certificate_parameters, declar
 class ObserverNode(Node):
     def __init__(self):
         super().__init__("observer_node")
+        declare_realtime_priority(self)
         self.declare_parameter("joints", list(JOINT_NAMES), desc("joints, in this order", read_only=True))
         self.declare_parameter("dt", 0.004, desc("tick period, s", 1e-4, 1.0, read_only=True))
         declare_certificate_parameters(self)

@@ -25,12 +25,13 @@ from sensor_msgs.msg import JointState
 
 from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
 from ..robot.dynamics import JOINT_NAMES
-from .common import SAFE_STOP_QOS, TICK_QOS, desc, spin_node, stamp_ns
+from .common import SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 
 
 class ReferenceNode(Node):
     def __init__(self):
         super().__init__("reference_node")
+        declare_realtime_priority(self)
         self.declare_parameter("seed", 0, desc("seed of the random moves", 0, 2 ** 31 - 1, integer=True,
                                                read_only=True))
         self.declare_parameter("qd_max", 0.7, desc("velocity limit, rad/s", 0.01, 2.0, read_only=True))

@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 
 from ..errors import ReachsetError
 from ..sim.link import Link, LinkFault
-from .common import TICK_QOS, desc, spin_node
+from .common import TICK_QOS, declare_realtime_priority, desc, spin_node
 
 TYPES = {"sensor_msgs/msg/JointState": JointState, "reachset_msgs/msg/PlantInput": PlantInput}
 
@@ -26,6 +26,7 @@ TYPES = {"sensor_msgs/msg/JointState": JointState, "reachset_msgs/msg/PlantInput
 class RelayNode(Node):
     def __init__(self):
         super().__init__("relay_node")
+        declare_realtime_priority(self)
         self.declare_parameter("input_topic", "joint_states", desc("the topic relayed", read_only=True))
         self.declare_parameter("output_topic", "relay/joint_states",
                                desc("where the samples that pass go (remap the reader's input here)", read_only=True))

@@ -39,7 +39,7 @@ from std_msgs.msg import Float64MultiArray, Header
 from ..sim import simulator as sim
 from ..errors import ReachsetError
 from ..sim.reference import ReferenceConfig
-from .common import CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, desc, spin_node, to_stamp
+from .common import CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, to_stamp
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up
 CATCH_UP = 1.0
@@ -66,6 +66,7 @@ def make_fault(kind, joint, magnitude, start_s):
 class SimNode(Node):
     def __init__(self):
         super().__init__("sim_node")
+        declare_realtime_priority(self)
         self.declare_parameter("seed", 0, desc("seed of noise and model error", 0, 2 ** 31 - 1, integer=True,
                                                read_only=True))
         self.declare_parameter("realistic", True, desc("model error, friction, quantization, noise", read_only=True))
