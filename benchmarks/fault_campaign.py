@@ -11,6 +11,8 @@ Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 480 --seed 1 --qui
 80 minutes of wall time; six training recordings of 40 s, the inflation one grid step above the
 cross-validated one); ``--short`` is the `make test` variant (test/test_fault_campaign.py): 10 events
 after 1-2 s of fault-free running each, no burners, three training recordings of 20 s.
+``--realtime-priority 50`` runs the loop's and the stop path's nodes under SCHED_FIFO
+(``realtime_priority``, docs/nodes.md; the burners and the recorder stay at the default policy).
 Exit status 0 when nothing was missed and no stop was false, 1 otherwise.
 """
 import argparse
@@ -89,7 +91,8 @@ def report(score):
 
 def rescore(work, events):
     """The outcomes of ``work/campaign.json`` with the stops judged again from its bags."""
-    from reachset_ros.nodes.campaign_driver import bag_stops, frozen_before_motion, judge_stops, link_onsets
+    from reachset_ros.nodes.campaign_driver import (bag_brakes, bag_stops, frozen_before_motion, judge_stops,
+                                                    link_onsets)
     res = json.loads((work / "campaign.json").read_text())
     if [e.label() for e in events] != [o["event"] for o in res["outcomes"]]:
         sys.exit("fault_campaign: error: the schedule of these arguments is not the campaign's (use its --events, "
@@ -104,6 +107,7 @@ def rescore(work, events):
     judge_stops(outcomes)
     frozen_before_motion(outcomes)
     link_onsets(outcomes)
+    bag_brakes(outcomes)
     return report(cp.score(outcomes, res["info"].get("apparatus_stops", ())))
 
 

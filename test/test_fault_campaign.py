@@ -228,3 +228,46 @@ def test_a_stop_the_runner_did_not_wait_for_is_read_from_the_bag(tmp_path):
     assert late.stops == [] and late.note == "no stop within the detection window"
     s = cp.score([inside, late])
     assert (s["stops"], s["missed_stops"]) == (1, 1)
+
+
+def test_the_stops_arrival_at_the_controller_is_read_from_the_bags_brake_commands(tmp_path):
+    """The seventh long run's one delivery of 184 ms was the campaign's listener (a
+    normal-priority process beside the burners) receiving late: the controller had the stop
+    4 ms after the fault and braked from the next measurement (block038's /brake_command).
+    ``bag_brakes`` takes the stop's arrival at the controller from the bag: the first
+    braking measurement at or after the stop's stamp, up to the reset; a killed controller's
+    (its restarted successor's first command) is not taken. ``score`` reports it apart from
+    the listener's arrival."""
+    from reachset_ros import bags
+    from reachset_ros.nodes.campaign_driver import bag_brakes
+    T0, DT = 10**18, 4_000_000
+    BC = bags.typestore().types[bags.messages.BRAKE_TYPE]
+    path = tmp_path / "block038"
+    # an earlier stop (braking since T0 - 40 ticks, before this event), tracking, then this
+    # stop: received with the estimate of T0 + 1 tick, braking from T0 + 2 ticks
+    with bags.BagWriter(path) as w:
+        for k, since, received in ((-45, T0 - 40 * DT, T0 - 41 * DT), (-1, 0, 0), (0, 0, 0),
+                                   (2, T0 + 2 * DT, T0 + DT), (3, T0 + 2 * DT, T0 + DT)):
+            t = T0 + k * DT
+            w.write(bags.messages.BRAKE_TOPIC, BC(header=bags.header(t), name=["a"], engage=np.array([False]), reason="",
+                                                  braking_since_ns=since, stop_received_ns=received),
+                    t + 1, bags.messages.BRAKE_TYPE)
+    bias = cp.Event(0, "sim", 1.0, "stop", fault="bias", joint="a", burners=True)
+    listener_late = T0 + 46 * DT                                # the listener's arrival: 184 ms
+    o = cp.Outcome(bias, fault_ns=T0, stops=[(T0, listener_late, "violation: a")], reset_ns=T0 + 500 * DT,
+                   bag=str(path))
+    killed = cp.Outcome(cp.Event(1, "kill", 1.0, "stop", target="controller_node"), fault_ns=T0,
+                        stops=[(T0, T0 + DT, "missing_data: a")], reset_ns=T0 + 500 * DT, bag=str(path))
+    after_reset = cp.Outcome(bias, fault_ns=T0, stops=[(T0, T0 + DT, "violation: a")], reset_ns=T0 + DT,
+                             bag=str(path))
+    bag_brakes([o, killed, after_reset])
+    assert o.controller_ns == T0 + 2 * DT
+    assert killed.controller_ns == 0 and after_reset.controller_ns == 0
+    s = cp.score([o, killed])
+    assert s["latency_ms"]["max"] == 184.0                      # the listener's
+    assert s["controller_latency_ms"]["max"] == 8.0 and s["controller_latency_ms"]["n"] == 1
+    assert s["controller_detection_ms_burners"]["max"] == 8.0
+    assert s["controller_unmeasured"] == []
+    assert "arrival at the controller, bias" in cp.table(s)
+    s = cp.score([after_reset])
+    assert s["controller_unmeasured"] == [after_reset.event.label()]

@@ -415,6 +415,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
         judge_stops(outcomes)
         frozen_before_motion(outcomes)
         link_onsets(outcomes)
+        bag_brakes(outcomes)
         return outcomes, info
     finally:
         burners.off()
@@ -483,6 +484,26 @@ def bag_stops(outcomes):
                 st, kind, reason = hit[0]
                 o.stops = [(st, st, f"{kind}: {reason}")]
                 o.note = "stop read from the bag (the runner had stopped waiting)"
+
+
+def bag_brakes(outcomes):
+    """The stop's arrival at the controller (:attr:`~reachset_ros.sim.campaign.Outcome.controller_ns`),
+    from its block's bag: the earliest ``braking_since_ns`` of a ``/brake_command`` from the
+    later of the stop's stamp and the fault's up to the reset (the first measurement the
+    controller commanded with the stop). Killed controllers and simulators are left out (the
+    drives' watchdog brakes; a restarted controller's first command is its start, not the
+    stop's arrival). Unchanged where the bag has no such command."""
+    from ..bags.messages import BRAKE_TOPIC
+    from ..bags.series import read_messages
+    for bag, group in _by_bag(o for o in outcomes if o.stops and o.bag and not (
+            o.event.kind == "kill" and o.event.target in ("controller_node", "sim_node"))).items():
+        since = sorted({int(m.braking_since_ns) for _, _, m in read_messages([bag], [BRAKE_TOPIC])
+                        if m.braking_since_ns})
+        for o in group:
+            lo = max(o.stops[0][0], o.fault_ns)
+            hit = [t for t in since if t >= lo and (not o.reset_ns or t <= o.reset_ns)]
+            if hit:
+                o.controller_ns = hit[0]
 
 
 def link_onsets(outcomes):

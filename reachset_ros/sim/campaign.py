@@ -156,6 +156,13 @@ class Outcome:
     #: fault (a slow move: the stop came before the window starts, so it cannot be late; the
     #: latency still counts from the fault)
     stopped_before_motion: bool = False
+    #: the stop's arrival at the controller, bounded from above: the stamp of the first
+    #: measurement the controller commanded with the stop (``BrakeCommand.braking_since_ns``
+    #: from the bag, campaign_driver.bag_brakes). In lockstep the simulation cannot step past
+    #: the measurement whose command the controller owes, so the stop reached the controller
+    #: before the simulation's clock passed this stamp. 0: no braking command (killed
+    #: controller or simulator, or none recorded)
+    controller_ns: int = 0
     bag: str = ""                     # the bag holding the event
     note: str = ""
 
@@ -318,7 +325,15 @@ def score(outcomes, apparatus_stops=()):
         and ``detection_ms_quiet`` split it by the CPU burners), ``wall_latency_ms``
         for killed processes, ``braking_ticks_max`` (first braking command after the stop's
         arrival at the controller, ticks; killed controllers excluded), ``misses`` and
-        ``false`` (each with its event, stamps and bag).
+        ``false`` (each with its event, stamps and bag). ``controller_latency_ms`` (and
+        ``_by_kind``): the stop's arrival at the controller, the node that acts on it
+        (:attr:`Outcome.controller_ns`, an upper bound), after the fault's stamp, every stop
+        that arrived but a killed controller's or simulator's (the drives' watchdog brakes
+        those); ``controller_detection_ms`` (``_burners``, ``_quiet``): the same after the
+        later of the stop's own stamp and the fault's; ``controller_unmeasured``: stops of
+        that set with no braking command in the bag. The ``latency_ms`` and ``detection_ms``
+        above are the arrival at the campaign's listener, a normal-priority process that the
+        burners also starve.
     """
     unobservable = [o for o in outcomes if o.event.expect == "stop" and o.note.startswith("unobservable")]
     faults = [o for o in outcomes if o.event.expect == "stop" and o not in unobservable]
@@ -345,10 +360,18 @@ def score(outcomes, apparatus_stops=()):
     detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in arrived]
     by_kind, stamp_by_kind = {}, {}
     for o, x, y in zip(arrived, lat, stamp_lat):
-        key = (o.event.fault if o.event.kind == "sim" else
-               f"link {o.event.fault}" if o.event.kind == "link" else o.event.kind)
+        key = _kind_key(o.event)
         by_kind.setdefault(key, []).append(x)
         stamp_by_kind.setdefault(key, []).append(y)
+    # the same at the controller, the node that acts on the stop (a killed controller or
+    # simulator has none to act: the drives' watchdog brakes)
+    acting = [o for o in arrived if not (o.event.kind == "kill" and o.event.target in ("controller_node", "sim_node"))]
+    at_ctl = [o for o in acting if o.controller_ns]
+    ctl_lat = [(o.controller_ns - o.latency_from()) * 1e-6 for o in at_ctl]
+    ctl_det = [(o.controller_ns - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in at_ctl]
+    ctl_by_kind = {}
+    for o, x in zip(at_ctl, ctl_lat):
+        ctl_by_kind.setdefault(_kind_key(o.event), []).append(x)
     wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
     # braking after the stop's arrival at the controller: every stop but a killed process'
     # (after a SIGKILL the other participants' sends to its shared-memory ports can block for
@@ -385,6 +408,12 @@ def score(outcomes, apparatus_stops=()):
         # the same with and without the CPU burners (normal priority, like the suite's processes)
         "detection_ms_burners": stats([d for o, d in zip(arrived, detection) if o.event.burners]),
         "detection_ms_quiet": stats([d for o, d in zip(arrived, detection) if not o.event.burners]),
+        "controller_latency_ms": stats(ctl_lat),
+        "controller_latency_ms_by_kind": {k: stats(v) for k, v in sorted(ctl_by_kind.items())},
+        "controller_detection_ms": stats(ctl_det),
+        "controller_detection_ms_burners": stats([d for o, d in zip(at_ctl, ctl_det) if o.event.burners]),
+        "controller_detection_ms_quiet": stats([d for o, d in zip(at_ctl, ctl_det) if not o.event.burners]),
+        "controller_unmeasured": [o.event.label() for o in acting if not o.controller_ns],
         "wall_latency_ms_killed": stats(wall),
         "braking_ticks_max": max(braking) if braking else None,
         "braking_measured": len(braking),
@@ -406,6 +435,12 @@ def score(outcomes, apparatus_stops=()):
                    for o in missed],
         "false": false,
     }
+
+
+def _kind_key(event):
+    """The row an event's latency goes to: the simulator fault, ``link <fault>``, or the kind."""
+    return (event.fault if event.kind == "sim" else
+            f"link {event.fault}" if event.kind == "link" else event.kind)
 
 
 def _stale_by_kind(outcomes):
@@ -444,6 +479,12 @@ def table(s):
          "delivery), ms", ms(s.get("detection_ms"))),
         ("  ... with the CPU burners on / off, ms", f"{ms(s.get('detection_ms_burners'))} / "
                                                   f"{ms(s.get('detection_ms_quiet'))}"),
+        ("the stop's arrival at the controller after the fault's stamp (upper bound: its first "
+         "braking measurement), ms", ms(s.get("controller_latency_ms"))),
+        ("  ... after the later of its own stamp and the fault's, burners on / off, ms",
+         f"{ms(s.get('controller_detection_ms_burners'))} / {ms(s.get('controller_detection_ms_quiet'))}"),
+        ("  stops without a braking command in the bag (killed controller / simulator apart)",
+         str(len(s.get("controller_unmeasured", [])))),
         ("killed process: wall time to the stop, ms", ms(s["wall_latency_ms_killed"])),
         ("braking onset after the stop's arrival, ticks (max; killed processes apart)",
          "-" if s["braking_ticks_max"] is None else f"{s['braking_ticks_max']:g} (n={s['braking_measured']})"),
@@ -456,6 +497,8 @@ def table(s):
     rows += [(f"  latency, {k}", ms(v)) for k, v in s["latency_ms_by_kind"].items()]
     rows += [(f"  own stamp after the fault's, {k}", ms(v))
              for k, v in s.get("stamp_latency_ms_by_kind", {}).items()]
+    rows += [(f"  arrival at the controller, {k}", ms(v))
+             for k, v in s.get("controller_latency_ms_by_kind", {}).items()]
     out = ["| measure | value |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
     if s.get("apparatus_stops"):
         out.append(f"\nstops while the campaign's recorder switched bags (apparatus, not scored): "
