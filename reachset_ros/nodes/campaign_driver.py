@@ -472,11 +472,12 @@ def bag_stops(outcomes):
     arrival is taken as its stamp (the bag has no listener's arrival), and ``note`` says so.
     For re-scoring a run whose runner stopped waiting early (the wall-time guard of the seventh
     long run, counted from the event's start instead of the window's)."""
+    from ..bags.messages import SAFE_STOP_TOPIC
     from ..bags.series import read_messages
     for bag, group in _by_bag(o for o in outcomes if o.event.expect == "stop" and not o.stops and o.bag
                               and o.note == NO_STOP_NOTE).items():
         active = sorted((stamp_ns(m.header.stamp), m.kind, m.reason)
-                        for _, _, m in read_messages([bag], ["/safe_stop"]) if m.active)
+                        for _, _, m in read_messages([bag], [SAFE_STOP_TOPIC]) if m.active)
         for o in group:
             end = o.latency_from() + int(cp.detect_within_s(o.event) * 1e9)
             hit = [a for a in active if o.fault_ns <= a[0] <= end]
@@ -490,13 +491,11 @@ def bag_brakes(outcomes):
     """The stop's arrival at the controller (:attr:`~reachset_ros.sim.campaign.Outcome.controller_ns`),
     from its block's bag: the earliest ``braking_since_ns`` of a ``/brake_command`` from the
     later of the stop's stamp and the fault's up to the reset (the first measurement the
-    controller commanded with the stop). Killed controllers and simulators are left out (the
-    drives' watchdog brakes; a restarted controller's first command is its start, not the
-    stop's arrival). Unchanged where the bag has no such command."""
+    controller commanded with the stop); only where :func:`~reachset_ros.sim.campaign.controller_acts`.
+    Unchanged where the bag has no such command."""
     from ..bags.messages import BRAKE_TOPIC
     from ..bags.series import read_messages
-    for bag, group in _by_bag(o for o in outcomes if o.stops and o.bag and not (
-            o.event.kind == "kill" and o.event.target in ("controller_node", "sim_node"))).items():
+    for bag, group in _by_bag(o for o in outcomes if o.stops and o.bag and cp.controller_acts(o.event)).items():
         since = sorted({int(m.braking_since_ns) for _, _, m in read_messages([bag], [BRAKE_TOPIC])
                         if m.braking_since_ns})
         for o in group:

@@ -172,6 +172,11 @@ class Outcome:
         link loss its first lost sample."""
         return self.observable_ns or self.fault_ns
 
+    def evidence_from(self):
+        """The later of the first stop's own stamp and :meth:`latency_from` (a stamp jump's stop
+        carries the jumped, earlier stamp: its evidence is the fault's); needs a stop."""
+        return max(self.stops[0][0], self.latency_from())
+
     def latency_ns(self):
         """The first stop's arrival after :meth:`latency_from` (needs a stop)."""
         return self.stops[0][1] - self.latency_from()
@@ -356,8 +361,7 @@ def score(outcomes, apparatus_stops=()):
     # latencies of every stop that arrived, late ones included
     lat = [o.latency_ns() * 1e-6 for o in arrived]
     stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in arrived]
-    # a stamp jump's stop carries the jumped (earlier) stamp: its evidence is the fault's stamp
-    detection = [(o.stops[0][1] - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in arrived]
+    detection = [(o.stops[0][1] - o.evidence_from()) * 1e-6 for o in arrived]
     by_kind, stamp_by_kind = {}, {}
     for o, x, y in zip(arrived, lat, stamp_lat):
         key = _kind_key(o.event)
@@ -365,10 +369,10 @@ def score(outcomes, apparatus_stops=()):
         stamp_by_kind.setdefault(key, []).append(y)
     # the same at the controller, the node that acts on the stop (a killed controller or
     # simulator has none to act: the drives' watchdog brakes)
-    acting = [o for o in arrived if not (o.event.kind == "kill" and o.event.target in ("controller_node", "sim_node"))]
+    acting = [o for o in arrived if controller_acts(o.event)]
     at_ctl = [o for o in acting if o.controller_ns]
     ctl_lat = [(o.controller_ns - o.latency_from()) * 1e-6 for o in at_ctl]
-    ctl_det = [(o.controller_ns - max(o.stops[0][0], o.latency_from())) * 1e-6 for o in at_ctl]
+    ctl_det = [(o.controller_ns - o.evidence_from()) * 1e-6 for o in at_ctl]
     ctl_by_kind = {}
     for o, x in zip(at_ctl, ctl_lat):
         ctl_by_kind.setdefault(_kind_key(o.event), []).append(x)
@@ -435,6 +439,13 @@ def score(outcomes, apparatus_stops=()):
                    for o in missed],
         "false": false,
     }
+
+
+def controller_acts(event):
+    """Whether the controller that had the stop is the one that acts on it: not after its own
+    or the simulator's SIGKILL (the drives' watchdog brakes; a restarted controller's first
+    command is its start, not the stop's arrival)."""
+    return not (event.kind == "kill" and event.target in ("controller_node", "sim_node"))
 
 
 def _kind_key(event):
