@@ -1,5 +1,6 @@
 """The node suite over real DDS: separate processes, parameter services, safe stop, watchdog."""
 import os
+import signal
 import time
 from types import SimpleNamespace
 
@@ -839,7 +840,8 @@ def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tm
 
 def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     """Issue 19.2 over real DDS, the whole suite (sim, reference, observer, controller,
-    monitor with a model identified on the nodes' code path, inflation 1 as the demo): a
+    monitor with a model identified on the nodes' code path, inflation 1 as the demo): the
+    simulated arm halts while the monitor is frozen (the simulator waits for its verdicts); a
     30 rad/s^2 fault beyond u_max stops the arm (the monitor's violation, category-1 brakes);
     the fault is cleared; ``~/reset`` is refused until the monitor has checked clean data to
     the horizon, then clears the stop; the reference restarts from the held position and
@@ -876,6 +878,16 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
             [p.log.read_text()[-800:] for p in procs]
         assert not any(m.active for _, m in list(stops)), ([m.reason for _, m in stops if m.active][:1],
                                                             _stale_lines(procs[0]))
+        # the simulator waits for the monitor's verdicts (monitor_lockstep_ticks, 5 by default): a
+        # monitor frozen for 0.25 s (within the lockstep timeout) halts the simulated arm, which
+        # would otherwise run on unchecked (in a slow make test the monitor trailed it by up to
+        # 1.3 s of stamp time, and a stop came that much later in the arm's time)
+        os.kill(procs[4].proc.pid, signal.SIGSTOP)
+        t_frozen = time.monotonic()
+        time.sleep(0.25)
+        os.kill(procs[4].proc.pid, signal.SIGCONT)
+        during = [_ns(m) for t, m in list(js) if t_frozen + 0.1 <= t <= t_frozen + 0.25]
+        assert len(during) <= 3, (len(during), during[:3])
         ok, why = set_remote_parameters(ros, "sim_node", {"fault_joint": "arm_1_joint", "fault_magnitude": 30.0,
                                                           "fault": "acceleration"})
         assert ok, why

@@ -24,6 +24,20 @@ not show) is never silent: each is logged (throttled to one line a second, with 
 and counted on ``/diagnostics`` (``reachset_ros: simulator``, about 1 Hz, WARN while such
 steps occur, with ``stale_effort``, ``last_stale_stamp_ns`` and the longest run of
 consecutive stale steps).
+
+In lockstep the monitor's verdicts are waited for too (``monitor_lockstep_ticks``, 5 by
+default): a step that would publish a measurement more than that many ticks after the newest
+one ``/conformance/status`` has reported checked waits, within the same ``lockstep_timeout``,
+for the monitor to catch up. A real arm does not wait for its monitor; the real-time monitor
+keeps up with it (docs/performance.md). A simulation that runs slower than real time on a
+loaded machine, with the monitor a process among many, would otherwise let the monitor fall
+behind the simulated arm by hundreds of ticks (up to 1.3 s of stamp time in a
+``make test`` on a slow machine, 2026-11-26), and a stop would reach the controller that much
+later in the arm's time: a delay of the simulation, not of the monitor. There is no wait
+before the first status is heard (no monitor, or a monitor without a model) or while the
+monitor has been silent for ``lockstep_timeout`` (frozen, dead, deactivated): the simulation
+then steps ahead of it, and each such step is logged (throttled) and counted on
+``/diagnostics`` (``ahead_of_monitor``, ``last_ahead_stamp_ns``), like a stale command.
 """
 import time
 
@@ -33,13 +47,14 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from reachset_msgs.msg import BrakeCommand
+from reachset_msgs.msg import BrakeCommand, ConformanceStatus
 from std_msgs.msg import Float64MultiArray, Header
 
 from ..sim import simulator as sim
 from ..errors import ReachsetError
 from ..sim.reference import ReferenceConfig
-from .common import CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, to_stamp
+from .common import (CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns,
+                     to_stamp)
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up
 CATCH_UP = 1.0
@@ -79,6 +94,12 @@ class SimNode(Node):
         self.declare_parameter("lockstep_timeout", 0.05,
                                desc("wait up to this long (s) for the command of the last measurement "
                                     "before stepping with the previous one (0: free-running)", 0.0, 1.0))
+        self.declare_parameter("monitor_lockstep_ticks", 5,
+                               desc("in lockstep, a step also waits (within lockstep_timeout) until the monitor's "
+                                    "/conformance/status has checked the measurement this many ticks before the one "
+                                    "it would publish (0: never wait for the monitor; no wait before the first "
+                                    "status, nor while the monitor has been silent for lockstep_timeout)",
+                                    0, 100000, integer=True))
         self.declare_parameter("drive_watchdog_steps", 3,
                                desc("the drives engage every holding brake after this many consecutive steps on a "
                                     "stale command (a controller that died or stalled), as a drive's communication "
@@ -107,7 +128,12 @@ class SimNode(Node):
         self.tau = np.array(self.arm.state.tau_pending)
         self.t_start = time.monotonic()
         self.names = list(self.arm.joint_names)
-        self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0, "stale_run_max": 0}
+        self.counters = {"ticks": 0, "stale_effort": 0, "bad_effort": 0, "stale_run_max": 0, "ahead_of_monitor": 0}
+        self.dt_ns = int(round(dt * 1e9))
+        self.checked_stamp = None    # newest stamp the monitor reported checked (/conformance/status)
+        self.checked_wall = 0.0      # wall time of that report
+        self.last_ahead_stamp = 0    # stamp of the last measurement published ahead of the monitor
+        self.ahead_reported = 0      # ahead_of_monitor at the last /diagnostics
         self.stale_run = 0           # consecutive steps on a stale command now
         self.last_stale_stamp = 0    # stamp of the last measurement stepped on a stale command
         self.stale_reported = 0      # stale_effort at the last /diagnostics
@@ -118,6 +144,7 @@ class SimNode(Node):
         self.onset_pub = self.create_publisher(Header, "sim/fault_onset", SAFE_STOP_QOS)
         self.create_subscription(Float64MultiArray, "effort_commands", self.on_effort, TICK_QOS)
         self.create_subscription(BrakeCommand, "brake_command", self.on_brakes, TICK_QOS)
+        self.create_subscription(ConformanceStatus, "conformance/status", self.on_status, TICK_QOS)
         self.reported = dict(self.arm.counters)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -138,6 +165,22 @@ class SimNode(Node):
         self.tau = tau
         self.fresh = True
         self.tick()  # the awaited command is here: step now if the period is due
+
+    def on_status(self, msg):
+        """The monitor's verdict of a tick: how far it has checked the measurements."""
+        stamp = stamp_ns(msg.header.stamp)
+        if self.checked_stamp is None or stamp > self.checked_stamp:
+            self.checked_stamp = stamp
+        self.checked_wall = time.monotonic()
+        self.tick()  # an awaited verdict: step now if the period is due
+
+    def ahead_of_monitor(self):
+        """True when the next measurement would be more than ``monitor_lockstep_ticks`` ticks
+        after the newest one the monitor has reported checked (False before any report)."""
+        ticks = int(self.get_parameter("monitor_lockstep_ticks").value)
+        if ticks <= 0 or self.checked_stamp is None:
+            return False
+        return self.m.stamp_ns + self.dt_ns - self.checked_stamp > ticks * self.dt_ns
 
     def on_brakes(self, msg):
         """Engage/release the holding brakes of the named joints (others unchanged)."""
@@ -184,16 +227,27 @@ class SimNode(Node):
 
     def tick(self):
         """Step when the period is due and the command of the last measurement has arrived
-        (lockstep, as a simulator may: the stamps stay on the simulation clock), or when
-        ``lockstep_timeout`` has passed (then the previous command is held, as a real drive does)."""
+        and the monitor has checked up to ``monitor_lockstep_ticks`` ticks before the next
+        measurement (lockstep, as a simulator may: the stamps stay on the simulation clock), or
+        when ``lockstep_timeout`` has passed (then the previous command is held, as a real drive
+        does, or the step goes ahead of the monitor; both counted)."""
         now = time.monotonic()
         if now < self.next_wall:
             return
         timeout = float(self.get_parameter("lockstep_timeout").value)
         stale = not self.fresh
+        ahead = timeout > 0 and self.ahead_of_monitor()
+        if timeout > 0 and now - self.published_wall < timeout and (
+                stale or (ahead and now - self.checked_wall < timeout)):
+            return   # the command of the last measurement, or the monitor's verdicts, are awaited
+        if ahead:
+            self.counters["ahead_of_monitor"] += 1
+            self.last_ahead_stamp = self.m.stamp_ns + self.dt_ns
+            self.get_logger().warning(
+                f"stepped ahead of the monitor at stamp {self.last_ahead_stamp} (newest stamp it reported checked: "
+                f"{self.checked_stamp}; {self.counters['ahead_of_monitor']} such steps so far)",
+                throttle_duration_sec=1.0)
         if stale:
-            if timeout > 0 and now - self.published_wall < timeout:
-                return
             self.counters["stale_effort"] += 1
             self.stale_run += 1
             self.counters["stale_run_max"] = max(self.counters["stale_run_max"], self.stale_run)
@@ -236,13 +290,19 @@ class SimNode(Node):
         st = DiagnosticStatus(name="reachset_ros: simulator", hardware_id="")
         new = self.counters["stale_effort"] - self.stale_reported
         self.stale_reported = self.counters["stale_effort"]
+        ahead = self.counters["ahead_of_monitor"] - self.ahead_reported
+        self.ahead_reported = self.counters["ahead_of_monitor"]
+        parts = []
         if new:
-            st.level = DiagnosticStatus.WARN
-            st.message = (f"{new} step(s) on a stale command since the last report (last at stamp "
-                          f"{self.last_stale_stamp}): the applied input is not the recorded /plant_input")
-        else:
-            st.level, st.message = DiagnosticStatus.OK, "stepping"
-        values = dict(self.counters, last_stale_stamp_ns=self.last_stale_stamp, **self.arm.counters)
+            parts.append(f"{new} step(s) on a stale command since the last report (last at stamp "
+                         f"{self.last_stale_stamp}): the applied input is not the recorded /plant_input")
+        if ahead:
+            parts.append(f"{ahead} step(s) ahead of the monitor's verdicts since the last report (last at stamp "
+                         f"{self.last_ahead_stamp})")
+        st.level = DiagnosticStatus.WARN if parts else DiagnosticStatus.OK
+        st.message = "; ".join(parts) or "stepping"
+        values = dict(self.counters, last_stale_stamp_ns=self.last_stale_stamp,
+                      last_ahead_stamp_ns=self.last_ahead_stamp, **self.arm.counters)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(values.items())]
         arr.status = [st]
         self.diag_pub.publish(arr)
@@ -251,7 +311,7 @@ class SimNode(Node):
         """At shutdown: say how many steps held a stale command (lockstep timeouts)."""
         c = self.counters
         self.get_logger().info(f"ticks {c['ticks']}, steps with a stale command {c['stale_effort']} "
-                               f"(longest run {c['stale_run_max']}), "
+                               f"(longest run {c['stale_run_max']}), steps ahead of the monitor {c['ahead_of_monitor']}, "
                                f"bad effort messages {c['bad_effort']}; simulated arm: "
                                + ", ".join(f"{k} {v}" for k, v in self.arm.counters.items()))
 
