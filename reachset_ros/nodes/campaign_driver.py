@@ -78,17 +78,20 @@ class CampaignListener:
         driver.create_subscription(JointReference, "reference", self.on_ref, TICK_QOS)
         self.moving = {}         # joint -> stamp of the first reference with |qd_d| > FROZEN_MOTION
         driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
-        self.stale_total = 0     # the simulators' steps on a stale command (summed over restarts)
-        self._stale_last = 0
+        # the simulators' steps on a stale command and ahead of the monitor's verdicts, summed
+        # over restarts
+        self.sim_steps = {"stale_effort": 0, "ahead_of_monitor": 0}
+        self._sim_last = dict.fromkeys(self.sim_steps, 0)
 
     def on_diag(self, arr):
         for st in arr.status:
             if st.name == "reachset_ros: simulator":
                 v = {kv.key: kv.value for kv in st.values}
-                n = int(v.get("stale_effort", "0"))
-                # a restarted simulator counts from 0 again
-                self.stale_total += n - self._stale_last if n >= self._stale_last else n
-                self._stale_last = n
+                for key, last in self._sim_last.items():
+                    n = int(v.get(key, "0"))
+                    # a restarted simulator counts from 0 again
+                    self.sim_steps[key] += n - last if n >= last else n
+                    self._sim_last[key] = n
 
     def on_stop(self, m):
         if not m.active:
@@ -246,7 +249,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
 
     def run_event(ev, bag):
         o = cp.Outcome(ev, bag=str(bag))
-        stale0 = lis.stale_total
+        steps0 = dict(lis.sim_steps)
         burners.set(ev.burners)
         n = len(lis.stops)
         t0 = driver.sim_now()
@@ -337,7 +340,9 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             log(f"[campaign]   MISSED: no stop within {cp.detect_within_s(ev)} s")
         if o.stops or ev.kind in ("sim", "kill", "link"):
             recover(ev, o)
-        o.stale_steps = lis.stale_total - stale0   # as reported so far (/diagnostics at 1 Hz)
+        # as reported so far (/diagnostics at 1 Hz)
+        o.stale_steps = lis.sim_steps["stale_effort"] - steps0["stale_effort"]
+        o.ahead_steps = lis.sim_steps["ahead_of_monitor"] - steps0["ahead_of_monitor"]
         return o
 
     try:

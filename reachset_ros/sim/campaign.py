@@ -148,6 +148,7 @@ class Outcome:
     reset_ns: int = 0                 # the simulation's time when the reset after the stop succeeded
     rest: dict = None                 # the stop's effect from the bag (:func:`judge_rest`)
     stale_steps: int = 0              # simulator steps on a stale command during the event (its /diagnostics)
+    ahead_steps: int = 0              # simulator steps ahead of the monitor's verdicts during the event (ditto)
     #: where the fault becomes observable, if later than fault_ns: a frozen sensor's joint's
     #: first reference motion after the fault; a link loss's first lost sample (from the bag,
     #: campaign_driver.link_onsets)
@@ -431,7 +432,9 @@ def score(outcomes, apparatus_stops=()):
         "recovery_stops": sum(o.recovery_stops for o in outcomes),
         "stale_steps": sum(o.stale_steps for o in outcomes),
         "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
-        "stale_steps_by_event": {k: v for k, v in _stale_by_kind(outcomes).items() if v},
+        "stale_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "stale_steps").items() if v},
+        "ahead_steps": sum(o.ahead_steps for o in outcomes),
+        "ahead_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "ahead_steps").items() if v},
         "apparatus_stops": [list(a) for a in apparatus_stops],
         "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag,
                     "note": (f"stop {o.latency_ns() * 1e-6:.0f} ms after the fault's stamp, "
@@ -454,11 +457,12 @@ def _kind_key(event):
             f"link {event.fault}" if event.kind == "link" else event.kind)
 
 
-def _stale_by_kind(outcomes):
+def _steps_by_event(outcomes, attr):
+    """A simulator step count (``stale_steps``, ``ahead_steps``) summed by event kind and target."""
     out = {}
     for o in outcomes:
         key = o.event.label().split(" ")[0] + (" " + o.event.target if o.event.target else "")
-        out[key] = out.get(key, 0) + o.stale_steps
+        out[key] = out.get(key, 0) + getattr(o, attr)
     return out
 
 
@@ -505,6 +509,8 @@ def table(s):
                  f"{s['at_rest']} / {s['rest_judged']} ({_f(s['rest_s_max'])}; {_f(s['travel_rad_max'])})"))
     rows.append(("simulator steps on a stale command (with burners on)",
                  f"{s['stale_steps']} ({s['stale_steps_burners']}); by event: {s['stale_steps_by_event']}"))
+    rows.append(("simulator steps ahead of the monitor's verdicts (the monitor silent for the lockstep timeout)",
+                 f"{s['ahead_steps']}; by event: {s['ahead_steps_by_event']}"))
     rows += [(f"  latency, {k}", ms(v)) for k, v in s["latency_ms_by_kind"].items()]
     rows += [(f"  own stamp after the fault's, {k}", ms(v))
              for k, v in s.get("stamp_latency_ms_by_kind", {}).items()]
