@@ -13,6 +13,9 @@ cross-validated one); ``--short`` is the `make test` variant (test/test_fault_ca
 after 1-2 s of fault-free running each, no burners, three training recordings of 20 s.
 ``--realtime-priority 50`` runs the loop's and the stop path's nodes under SCHED_FIFO
 (``realtime_priority``, docs/nodes.md; the burners and the recorder stay at the default policy).
+``--monitor-lockstep-ticks 0`` lets the simulation run ahead of the monitor's verdicts (the
+simulator's ``monitor_lockstep_ticks``, 5 by default; docs/reliability.md, "The monitor trailing
+the simulated arm").
 Exit status 0 when nothing was missed and no stop was false, 1 otherwise.
 """
 import argparse
@@ -50,6 +53,9 @@ def main(argv=None):
     ap.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                     help="run the loop's and the stop path's nodes under SCHED_FIFO at N (1-99; needs "
                          "CAP_SYS_NICE; default 0: the default policy, as the burners)")
+    ap.add_argument("--monitor-lockstep-ticks", type=int, default=None, metavar="N",
+                    help="the simulator's monitor_lockstep_ticks (default: the node's, 5; 0: the simulation "
+                         "does not wait for the monitor's verdicts)")
     ap.add_argument("--short", action="store_true", help="the make-test variant: 10 events, no burners")
     a = ap.parse_args(argv)
     if a.short:
@@ -68,6 +74,7 @@ def main(argv=None):
     outcomes, info = run_campaign(work, events, seed=a.seed, train=a.train, model=a.model,
                                   train_runs=a.train_runs, calibrate_margin=a.calibrate_margin,
                                   realtime_priority=a.realtime_priority,
+                                  monitor_lockstep_ticks=a.monitor_lockstep_ticks,
                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     score = cp.score(outcomes, info.get("apparatus_stops", ()))
     (work / "campaign.json").write_text(json.dumps({"info": info, "score": score,

@@ -139,14 +139,15 @@ class Burners:
 
 
 def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=None, train_runs=3,
-                 calibrate_margin=0, realtime_priority=0):
+                 calibrate_margin=0, realtime_priority=0, monitor_lockstep_ticks=None):
     """Run ``events`` (:func:`reachset_ros.sim.campaign.schedule`); returns ``(outcomes, info)``.
 
     ``model``: a model file for the monitor (skips the training recordings and the
     identification); ``calibrate_margin``: grid steps of inflation above the cross-validated
     one (``identify --calibrate-margin``); ``realtime_priority``: SCHED_FIFO priority of the
     simulator, reference, observer, controller, monitor and relay (0: the default policy;
-    :mod:`.scheduling`); ``info`` has the model, its inflation (and the
+    :mod:`.scheduling`); ``monitor_lockstep_ticks``: the simulator's parameter (``None``: its
+    default; 0: the simulation does not wait for the monitor's verdicts); ``info`` has the model, its inflation (and the
     cross-validated one) and the nodes' logs directory."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
@@ -178,8 +179,11 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
         # burners; the recorder and this driver keep the default policy
         for name in ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node", "relay_node"):
             params[name]["realtime_priority"] = int(realtime_priority)
+    if monitor_lockstep_ticks is not None:
+        params["sim_node"]["monitor_lockstep_ticks"] = int(monitor_lockstep_ticks)
     remaps = {"monitor_node": {"joint_states": RELAYED}}
-    info = {"workdir": str(workdir), "seed": seed, "realtime_priority": int(realtime_priority)}
+    info = {"workdir": str(workdir), "seed": seed, "realtime_priority": int(realtime_priority),
+            "monitor_lockstep_ticks": monitor_lockstep_ticks}
     outcomes = []
     rec = None
 
