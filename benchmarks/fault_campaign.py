@@ -33,7 +33,7 @@ from reachset_ros.sim import campaign as cp
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--events", type=int, default=320)
-    ap.add_argument("--seed", type=int, default=None, help="seed of the schedule (default 1; --short: 47)")
+    ap.add_argument("--seed", type=int, default=None, help="seed of the schedule (default 1; --short: 92)")
     ap.add_argument("--quiet", type=float, nargs=2, default=(3.0, 8.0), metavar=("MIN", "MAX"),
                     help="fault-free stretch before each event, simulated s (uniform)")
     ap.add_argument("--train", type=float, default=40.0, help="simulated s per training recording")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -57,6 +58,8 @@ RESET_PATIENCE_S = 20.0
 RELAYED = "/campaign/relayed/joint_states"
 #: resets tried before the campaign gives up on recovering
 MAX_RESETS = 6
+#: training recordings tried while a brake engaged during them, before the campaign gives up
+TRAIN_TRIES = 3
 #: share of the reference's moves led by one joint at its full limits (training and events alike)
 REFERENCE_LEAD = 0.5
 BURNER = "while True:\n    pass\n"
@@ -80,6 +83,8 @@ class CampaignListener:
         driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
         # the simulators' steps on a stale command and ahead of the monitor's verdicts, summed
         # over restarts
+        self.braked = 0          # /brake_command messages with an engaged brake
+        self.brake_reason = ""   # the newest one's reason
         self.sim_steps = {"stale_effort": 0, "ahead_of_monitor": 0}
         self._sim_last = dict.fromkeys(self.sim_steps, 0)
 
@@ -106,6 +111,9 @@ class CampaignListener:
     def on_brake(self, m):
         if m.stop_received_ns and m.braking_since_ns:
             self.brakes.append((int(m.braking_since_ns), int(m.stop_received_ns)))
+        if any(m.engage):
+            self.braked += 1
+            self.brake_reason = m.reason
 
     def on_js(self, m):
         self.last_js = m
@@ -360,9 +368,24 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
             bags = []
             for i in range(1, train_runs + 1):
                 bag = workdir / f"train{i}"
-                r = _record(driver, workdir, bag, CORE_TOPICS, f"recorder_train{i}", group)
-                sim_wait(train)
-                launch.stop([r])
+                for attempt in range(1, TRAIN_TRIES + 1):
+                    # the arm must move through the whole recording: a stop the controller latched
+                    # on its own (a reference lost at start-up on a slow machine) held every brake
+                    # through the training of a fresh-clone make test, and the model identified on
+                    # the held arm stopped the campaign at once on fault-free running
+                    reset_monitor()
+                    braked0 = lis.braked
+                    r = _record(driver, workdir, bag, CORE_TOPICS, f"recorder_train{i}_{attempt}", group)
+                    sim_wait(train)
+                    launch.stop([r])
+                    if lis.braked == braked0:
+                        break
+                    log(f"[campaign] training recording {i}: a brake engaged during it ({lis.brake_reason}); "
+                        f"recorded again ({attempt} of {TRAIN_TRIES})")
+                    shutil.rmtree(bag, ignore_errors=True)
+                else:
+                    raise RuntimeError(f"training recording {i}: a brake engaged in each of {TRAIN_TRIES} tries "
+                                       f"(last: {lis.brake_reason})")
                 bags.append(bag)
             model = workdir / "monitor_model.yaml"
             cmd = [sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags),
