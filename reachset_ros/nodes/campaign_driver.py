@@ -374,6 +374,7 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
                     # through the training of a fresh-clone make test, and the model identified on
                     # the held arm stopped the campaign at once on fault-free running
                     reset_monitor()
+                    sim_wait(0.5)   # brake commands still in flight from before the reset
                     braked0 = lis.braked
                     r = _record(driver, workdir, bag, CORE_TOPICS, f"recorder_train{i}_{attempt}", group)
                     sim_wait(train)
