@@ -81,10 +81,10 @@ class CampaignListener:
         driver.create_subscription(JointReference, "reference", self.on_ref, TICK_QOS)
         self.moving = {}         # joint -> stamp of the first reference with |qd_d| > FROZEN_MOTION
         driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
-        # the simulators' steps on a stale command and ahead of the monitor's verdicts, summed
-        # over restarts
         self.braked = 0          # /brake_command messages with an engaged brake
         self.brake_reason = ""   # the newest one's reason
+        # the simulators' steps on a stale command and ahead of the monitor's verdicts, summed
+        # over restarts
         self.sim_steps = {"stale_effort": 0, "ahead_of_monitor": 0}
         self._sim_last = dict.fromkeys(self.sim_steps, 0)
 
@@ -155,8 +155,8 @@ def run_campaign(workdir: Path, events, seed=1, train=20.0, log=print, model=Non
     one (``identify --calibrate-margin``); ``realtime_priority``: SCHED_FIFO priority of the
     simulator, reference, observer, controller, monitor and relay (0: the default policy;
     :mod:`.scheduling`); ``monitor_lockstep_ticks``: the simulator's parameter (``None``: its
-    default; 0: the simulation does not wait for the monitor's verdicts); ``info`` has the model, its inflation (and the
-    cross-validated one) and the nodes' logs directory."""
+    default; 0: the simulation does not wait for the monitor's verdicts); ``info`` has the
+    model, its inflation (and the cross-validated one) and the nodes' logs directory."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
     procs = {}

@@ -308,10 +308,11 @@ class SimNode(Node):
         self.diag_pub.publish(arr)
 
     def close(self):
-        """At shutdown: say how many steps held a stale command (lockstep timeouts)."""
+        """At shutdown: say how many steps held a stale command or went ahead of the monitor."""
         c = self.counters
         self.get_logger().info(f"ticks {c['ticks']}, steps with a stale command {c['stale_effort']} "
-                               f"(longest run {c['stale_run_max']}), steps ahead of the monitor {c['ahead_of_monitor']}, "
+                               f"(longest run {c['stale_run_max']}), "
+                               f"steps ahead of the monitor {c['ahead_of_monitor']}, "
                                f"bad effort messages {c['bad_effort']}; simulated arm: "
                                + ", ".join(f"{k} {v}" for k, v in self.arm.counters.items()))
 
