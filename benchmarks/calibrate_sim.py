@@ -1,6 +1,6 @@
 """Calibrate the simulated LWA-4P's unmodelled effects to the real robot (issue 16.2).
 
-Run: .venv/bin/python benchmarks/calibrate_sim.py [--data ../shared/data/lwa4p_iros2018] [--runs 1-40:train]
+Run: .venv/bin/python benchmarks/calibrate_sim.py [--data DIR] [--runs 1-40:train]
      [--horizon 125]
 
 The real runs' sets (Theorem 1, min ‖W‖ + ‖V‖, estimator fd, k* = ``--horizon``) are
@@ -77,7 +77,7 @@ def worst(r):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data" / "lwa4p_iros2018"))
+    ap.add_argument("--data", default=None, help="the LWA-4P recordings (default: the shipped reachset_ros/data/lwa4p_iros2018)")
     ap.add_argument("--runs", default="1-40:train")
     ap.add_argument("--horizon", type=int, default=125)
     ap.add_argument("--size", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2])
@@ -89,6 +89,7 @@ def main():
     ap.add_argument("--verify", nargs="+", metavar="RUNS",
                     help="only report the ratios of SimConfig.calibrated() (the shipped values) on these runs")
     a = ap.parse_args()
+    a.data = str(lwa4p.recordings_dir(a.data))
     if a.verify:
         nominal = lwa4p.load_nominal()
         print("| runs | worst ratio | alpha_W ratios (sim/real) | alpha_V ratios (sim/real) |\n|---|---|---|---|")

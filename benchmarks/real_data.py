@@ -1,6 +1,6 @@
 """Real Schunk LWA-4P data on the real-data protocol (docs/real-data.md).
 
-Run: .venv/bin/python benchmarks/real_data.py [--data ../shared/data/lwa4p_iros2018] [--plots DIR]
+Run: .venv/bin/python benchmarks/real_data.py [--data DIR] [--plots DIR]
 
 Protocol: runs whose number is divisible by 4 (25 runs) are held out; the nominal model, the
 sets and the inflation are fitted on the other 75 only. Prints markdown tables:
@@ -23,6 +23,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+from reachset_ros.robot import lwa4p  # noqa: E402
 from reachset_ros.robot.lwa4p import FAMILIES, _runs_spec, is_held_out  # noqa: E402
 
 VERBOSE = False
@@ -73,10 +74,11 @@ def share(chk, joint):
 def main():
     global VERBOSE
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data" / "lwa4p_iros2018"))
+    ap.add_argument("--data", default=None, help="the LWA-4P recordings (default: the shipped reachset_ros/data/lwa4p_iros2018)")
     ap.add_argument("--plots", default=None, help="write the deviation plots of the protocol run here")
     ap.add_argument("--verbose", action="store_true", help="print each reachset command on stderr")
     a = ap.parse_args()
+    a.data = str(lwa4p.recordings_dir(a.data))
     VERBOSE = a.verbose
     train = [r for r in range(1, 101) if not is_held_out(r)]
     held = [r for r in range(1, 101) if is_held_out(r)]

@@ -5,7 +5,7 @@ Usage::
 
     python benchmarks/stuck_readings.py [--data DIR] [--campaign WORK]
 
-``--data`` (default ``../shared/data/lwa4p_iros2018``): the real LWA-4P recordings. For each
+``--data`` (default: the shipped ``reachset_ros/data/lwa4p_iros2018``): the real LWA-4P recordings. For each
 joint and speed threshold, the longest run of repeats (a sample bit-identical to the one
 before) during which the joint's *measured* speed stayed at or above the threshold, and the
 longest run at any speed (at rest a quantized encoder repeats itself for seconds).
@@ -64,6 +64,8 @@ def rule_fires(name, st, y, speed, ticks, min_speed):
 
 
 def real_data(path):
+    from reachset_ros.robot.lwa4p import recordings_dir
+    path = recordings_dir(path)
     runs = sorted(glob.glob(str(Path(path) / "measurement_*")), key=lambda s: int(s.rsplit("_", 1)[1]))
     if not runs:
         raise SystemExit(f"error: no measurement_* folders in {path}")
@@ -136,7 +138,7 @@ def campaign(work, ticks=5, speed=0.05):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "lwa4p_iros2018"))
+    p.add_argument("--data", default=None, help="the LWA-4P recordings (default: the shipped reachset_ros/data/lwa4p_iros2018)")
     p.add_argument("--campaign", help="a fault campaign's work directory (campaign.json and block* bags)")
     a = p.parse_args(argv)
     real_data(a.data)

@@ -1,4 +1,4 @@
-"""The ``reachset`` command line (../shared/INTERFACES.md).
+"""The ``reachset`` command line (docs/interfaces.md).
 
 Subcommands live in :mod:`reachset_ros.commands`, one module each. Errors in the user's
 input raise :class:`reachset_ros.errors.ReachsetError`; ``main`` prints them as one line

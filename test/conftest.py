@@ -1,4 +1,4 @@
-"""Shared test set-up: DDS isolated per test session, paths to the shared data."""
+"""Shared test set-up: DDS isolated per test session, the real recordings shipped in the package."""
 import os
 import random
 from pathlib import Path
@@ -16,15 +16,13 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)
 use_dds_profiles()
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED = REPO.parent / "shared"
-LWA4P_DATA = SHARED / "data" / "lwa4p_iros2018"
 
 
 @pytest.fixture(scope="session")
 def lwa4p_dir():
-    if not LWA4P_DATA.is_dir():
-        pytest.skip(f"real recordings not found at {LWA4P_DATA}")
-    return LWA4P_DATA
+    """The real LWA-4P recordings shipped in the package: a missing copy fails, never skips."""
+    from reachset_ros.robot.lwa4p import recordings_dir
+    return recordings_dir()
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""``reachset analyze`` as a user runs it (a real subprocess), ../shared/INTERFACES.md."""
+"""``reachset analyze`` as a user runs it (a real subprocess), docs/interfaces.md."""
 import json
 import subprocess
 import sys

@@ -160,7 +160,7 @@ def test_shipped_nominal_is_what_its_command_produces(refit):
     assert sorted(read) == [r for r in range(1, 101) if r % 4] and not any(lwa4p.is_held_out(r) for r in read)
     doc = yaml.safe_load(NOMINAL.read_text())
     assert doc["command"].startswith("reachset fit-lwa4p ")
-    assert doc["command"].split()[3:7] == ["--runs", "train", "--out", "config/lwa4p_nominal.yaml"]
+    assert doc["command"].split()[2:6] == ["--runs", "train", "--out", "config/lwa4p_nominal.yaml"]
     assert lwa4p.parse_runs(doc["data"]["runs"]) == lwa4p.parse_runs("train")
     shipped = lwa4p.load_nominal()
     np.testing.assert_allclose(shipped.torque_scale, fit.identified.torque_scale, rtol=1e-4)

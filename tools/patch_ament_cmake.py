@@ -3,7 +3,7 @@
 The PyPI Jazzy wheels were built under /opt/python/cp311-cp311; their
 ``share/*/cmake/*.cmake`` files name that interpreter's include directory and numpy's.
 This script replaces them with this interpreter's paths (idempotent).
-See ../shared/notes/ros2-from-pypi.md.
+See docs/ros2-from-pypi.md.
 """
 import glob
 import os

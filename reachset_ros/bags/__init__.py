@@ -1,6 +1,6 @@
 """rosbag2 bags (MCAP by default, sqlite3 readable): the project's bag layout, writing, reading.
 
-The layout (``../shared/INTERFACES.md``): ``/joint_states`` (``sensor_msgs/msg/JointState``,
+The layout (``docs/interfaces.md``): ``/joint_states`` (``sensor_msgs/msg/JointState``,
 ``position`` is y_p) and ``/plant_input`` (``reachset_msgs/msg/PlantInput``, u_p) are what
 identification and checking need; a closed loop also records ``/reference`` and
 ``/observer/estimate`` (the paper's Appendix-B reference error), the monitor

@@ -1,6 +1,6 @@
 """The bag layout's messages: topic names and types, the ``reachset_msgs`` typestore, builders.
 
-Every topic a ``reachset_ros`` bag can hold (``../shared/INTERFACES.md``, "Topics" and
+Every topic a ``reachset_ros`` bag can hold (``docs/interfaces.md``, "Topics" and
 "Bags") is named here once, with its message type; code outside ``nodes/`` that reads a
 bag names a topic by these constants. The custom ``reachset_msgs`` types are registered in
 a rosbags typestore from their ``.msg`` texts (installed by ``msg_defs/`` under
@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ..errors import ReachsetError
 
-#: Topics of the bag layout (../shared/INTERFACES.md).
+#: Topics of the bag layout (docs/interfaces.md).
 JOINT_STATES = "/joint_states"
 PLANT_INPUT = "/plant_input"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"

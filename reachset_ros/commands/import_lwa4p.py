@@ -14,7 +14,9 @@ HELP = "convert the real Schunk LWA-4P recordings to a rosbag2 bag (/joint_state
 
 
 def add_arguments(p):
-    p.add_argument("dir", metavar="DIR", help="data directory with measurement_i/ folders")
+    p.add_argument("dir", metavar="DIR", nargs="?", default=None,
+                   help="data directory with measurement_i/ folders (default: the recordings "
+                        "shipped in reachset_ros/data/lwa4p_iros2018)")
     p.add_argument("--runs", required=True, help="runs to import: train, heldout, a range (1-70), or A-B:train / A-B:heldout")
     p.add_argument("--out", required=True, metavar="BAG", help="bag directory to create")
     p.add_argument("--model", default=None, metavar="MODEL.yaml",

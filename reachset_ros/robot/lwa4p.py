@@ -119,9 +119,39 @@ def _load_csv(path: Path, cols: int) -> np.ndarray:
     return a
 
 
+#: The real recordings shipped with the package (CC0; source and licence in its README.md and
+#: LICENSE): 100 runs of the paper's Schunk LWA-4P (Liu and Althoff, IROS 2018).
+RECORDINGS_DIR = Path(__file__).resolve().parents[1] / "data" / "lwa4p_iros2018"
+
+
+def recordings_dir(root=None) -> Path:
+    """The directory of the LWA-4P recordings: ``root``, or the shipped :data:`RECORDINGS_DIR`.
+
+    Parameters
+    ----------
+    root : path-like, optional
+        A directory with ``measurement_<i>/`` folders; ``None`` for the recordings shipped
+        in ``reachset_ros/data/lwa4p_iros2018``.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ReachsetError
+        The directory does not exist (naming the place it was expected).
+    """
+    d = RECORDINGS_DIR if root is None else Path(root)
+    if not d.is_dir():
+        what = "the shipped LWA-4P recordings" if root is None else "data directory"
+        raise ReachsetError(f"{d}: {what} not found")
+    return d
+
+
 def read_run(root, index: int) -> Run:
-    """Read and validate ``root/measurement_<index>``."""
-    d = Path(root) / f"measurement_{index}"
+    """Read and validate ``root/measurement_<index>`` (``root=None``: :data:`RECORDINGS_DIR`)."""
+    d = recordings_dir(root) / f"measurement_{index}"
     if not d.is_dir():
         raise ReachsetError(f"{d}: run directory not found")
     x = _load_csv(d / "trajectory.csv", 12)
@@ -145,10 +175,9 @@ def read_run(root, index: int) -> Run:
 
 
 def read_runs(root, runs) -> list:
-    """:func:`read_run` for each run number (``runs``: list or range spec string)."""
-    root = Path(root)
-    if not root.is_dir():
-        raise ReachsetError(f"{root}: data directory not found")
+    """:func:`read_run` for each run number (``runs``: list or range spec string; ``root=None``:
+    the shipped recordings, :data:`RECORDINGS_DIR`)."""
+    root = recordings_dir(root)
     if isinstance(runs, str):
         runs = parse_runs(runs)
     return [read_run(root, i) for i in runs]

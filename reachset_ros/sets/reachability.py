@@ -1,7 +1,7 @@
 """Reachable sets of discrete linear systems and sound invariant-set bounds.
 
 System (paper eq. ``discreteSystem``; equations are cited by their LaTeX label in
-shared/paper/TRO2021.tex because the numbering differs between versions of the paper)::
+the paper's LaTeX source (docs/theory.md) because the numbering differs between versions of the paper)::
 
     x[k+1] = A x[k] + B u[k] + w[k],   w[k] in W = (c_W, G'_W diag(alpha_W))
     y[k]   = C x[k] + D u[k] + v[k],   v[k] in V = (c_V, G'_V diag(alpha_V))
