@@ -14,7 +14,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 MSG_SRCS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
 PYTEST_ARGS ?= -q --durations=25
 
-.PHONY: all venv test demo benchmark fuzz clean distclean
+.PHONY: all venv test test-pure demo benchmark fuzz clean distclean
 
 all: test
 
@@ -43,6 +43,10 @@ venv: $(VENV)/.pkg
 
 test: venv
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# the pure tests only (no DDS participant, no node process): the core, the command line, bags
+test-pure: venv
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds"
 
 # the demo picks a fresh ROS_DOMAIN_ID (reachset_ros/domain.py) and prints it first: a second
 # `make demo` on the machine runs beside it undisturbed
