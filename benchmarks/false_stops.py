@@ -34,7 +34,7 @@ from std_srvs.srv import Trigger
 from reachset_ros import launch
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters, stamp_ns
-from reachset_ros.nodes.demo_driver import CORE_TOPICS, JOINTS, DemoDriver
+from reachset_ros.workflows.commander import CORE_TOPICS, JOINTS, SuiteCommander
 
 LISTENER = """
 import sys, rclpy
@@ -72,7 +72,7 @@ def main():
     load0 = os.getloadavg()
     procs = []
     rclpy.init()
-    driver = DemoDriver()
+    driver = SuiteCommander(workdir=work)
     out = {"domain": domain, "workdir": str(work), "load_average_before": load0}
     try:
         common = {"joints": JOINTS, "allow_uncertified": True}
