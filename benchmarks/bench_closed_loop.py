@@ -43,7 +43,7 @@ def run(executor, seconds, workdir, warmup=6.0):
 
     from reachset_ros import launch
     from reachset_ros.nodes.common import TICK_QOS
-    from reachset_ros.nodes.demo_driver import INITIAL_GAINS
+    from reachset_ros.workflows.demo import INITIAL_GAINS
     from reachset_ros.robot import JOINT_NAMES
 
     joints = list(JOINT_NAMES)

@@ -30,7 +30,7 @@ from reachset_msgs.msg import PlantInput
 from reachset_ros import launch
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.nodes.common import TICK_QOS
-from reachset_ros.nodes.demo_driver import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
+from reachset_ros.workflows.demo import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
 
 SUBSCRIBER = """
 import rclpy

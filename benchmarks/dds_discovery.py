@@ -24,7 +24,7 @@ from pathlib import Path
 
 from reachset_ros import launch
 from reachset_ros.domain import pick_domain_id
-from reachset_ros.nodes.demo_driver import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
+from reachset_ros.workflows.demo import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
 
 EMPTY_PROFILES = ('<?xml version="1.0" encoding="UTF-8" ?>\n'
                   '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"><profiles></profiles></dds>\n')

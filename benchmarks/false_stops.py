@@ -34,7 +34,7 @@ from std_srvs.srv import Trigger
 from reachset_ros import launch
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters, stamp_ns
-from reachset_ros.nodes.demo_driver import CORE_TOPICS, JOINTS, DemoDriver
+from reachset_ros.workflows.commander import CORE_TOPICS, JOINTS, SuiteCommander
 
 LISTENER = """
 import sys, rclpy
@@ -57,6 +57,15 @@ except BaseException:
 """
 
 
+def _record_run(driver, path, *, node, seconds):
+    """One recording of the core topics, ``seconds`` of simulated time; its path."""
+    rec = driver.record(path, CORE_TOPICS, node_name=node, wait_s=120.0)
+    driver.spin_sim(seconds)
+    launch.stop([rec])
+    print(f"recorded {path}", file=sys.stderr, flush=True)
+    return path
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="simulated minutes of normal running")
@@ -72,7 +81,7 @@ def main():
     load0 = os.getloadavg()
     procs = []
     rclpy.init()
-    driver = DemoDriver()
+    driver = SuiteCommander(workdir=work)
     out = {"domain": domain, "workdir": str(work), "load_average_before": load0}
     try:
         common = {"joints": JOINTS, "allow_uncertified": True}
@@ -82,20 +91,8 @@ def main():
         launch.start("controller_node", dict(common, wait_for_monitor=True), work, group=procs)
         launch.start("monitor_node", {"window_dir": str(work / "windows")}, work, group=procs)
         launch.start("synthesis_node", {"workdir": str(work / "synthesis")}, work, group=procs)
-        bags = []
-        for i in range(a.runs):
-            path = work / f"run{i + 1}"
-            node = f"recorder_{i + 1}"
-            rec = launch.start("recorder_node", {"output": str(path), "topics": CORE_TOPICS, "use_sim_time": True},
-                               work, node_name=node)
-            if not driver.spin_for(120.0, until=lambda: all(
-                    any(x.node_name == node for x in driver.get_subscriptions_info_by_topic(t)) for t in CORE_TOPICS)):
-                raise RuntimeError(f"{node} did not subscribe")
-            driver.spin_for(0.5)
-            driver.spin_sim(a.train)
-            launch.stop([rec])
-            bags.append(path)
-            print(f"recorded {path}", file=sys.stderr, flush=True)
+        bags = [_record_run(driver, work / f"run{i + 1}", node=f"recorder_{i + 1}", seconds=a.train)
+                for i in range(a.runs)]
         model = work / "model.yaml"
         p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", *map(str, bags[:-1]),
                             "--validate", str(bags[-1]), "--out", str(model), "--json"],

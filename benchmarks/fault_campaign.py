@@ -1,6 +1,6 @@
 """Fault campaign (issue 17): every injected fault stops the arm, nothing else does.
 
-The whole simulated system over real DDS (:mod:`reachset_ros.nodes.campaign_driver`), faults
+The whole simulated system over real DDS (:mod:`reachset_ros.workflows.campaign`), faults
 from a seeded schedule (:func:`reachset_ros.sim.campaign.schedule`: every simulator fault
 kind on every joint, SIGKILL of the observer, controller and simulator, SIGSTOP of any node
 for 50-500 ms, stamp jumps, fault-free stretches; CPU burners on both cores for every other
@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 
 from reachset_ros.domain import pick_domain_id
-from reachset_ros.nodes.campaign_driver import run_campaign
+from reachset_ros.workflows.campaign import run_campaign
 from reachset_ros.sim import campaign as cp
 
 
@@ -71,7 +71,7 @@ def main(argv=None):
     work = Path(a.workdir or tempfile.mkdtemp(prefix="fault_campaign_")).resolve()
     os.environ["ROS_DOMAIN_ID"] = str(pick_domain_id())
     print(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} workdir {work}", file=sys.stderr, flush=True)
-    outcomes, info = run_campaign(work, events, seed=a.seed, train=a.train, model=a.model,
+    outcomes, info = run_campaign(workdir=work, events=events, seed=a.seed, train=a.train, model=a.model,
                                   train_runs=a.train_runs, calibrate_margin=a.calibrate_margin,
                                   realtime_priority=a.realtime_priority,
                                   monitor_lockstep_ticks=a.monitor_lockstep_ticks,
@@ -98,8 +98,8 @@ def report(score):
 
 def rescore(work, events):
     """The outcomes of ``work/campaign.json`` with the stops judged again from its bags."""
-    from reachset_ros.nodes.campaign_driver import (bag_brakes, bag_stops, frozen_before_motion, judge_stops,
-                                                    link_onsets)
+    from reachset_ros.workflows.campaign import (bag_brakes, bag_stops, frozen_before_motion, judge_stops,
+                                                 link_onsets)
     res = json.loads((work / "campaign.json").read_text())
     if [e.label() for e in events] != [o["event"] for o in res["outcomes"]]:
         sys.exit("fault_campaign: error: the schedule of these arguments is not the campaign's (use its --events, "

@@ -138,7 +138,7 @@ def test_a_frozen_sensor_stopped_before_its_joint_moved_is_not_late(tmp_path):
     a late one (the runner had used the fault's stamp: a miss); the same stop after a fast
     move is late. Its latency from the fault is still reported."""
     from reachset_ros import bags
-    from reachset_ros.nodes.campaign_driver import frozen_before_motion
+    from reachset_ros.workflows.campaign import frozen_before_motion
     T0, DT = 10**18, 4_000_000
     JR = bags.typestore().types[bags.REFERENCE_TYPE]
     out = {}
@@ -169,7 +169,7 @@ def test_a_link_loss_counts_from_its_first_lost_sample(tmp_path):
     takes ticks); the latency counts from the first sample the link lost, read from the bag:
     the first /joint_states stamp without a /conformance/status."""
     from reachset_ros import bags
-    from reachset_ros.nodes.campaign_driver import link_onsets
+    from reachset_ros.workflows.campaign import link_onsets
     T0, DT = 10**18, 4_000_000
     CS = bags.typestore().types[bags.STATUS_TYPE]
     path = tmp_path / "block"
@@ -203,7 +203,7 @@ def test_a_stop_the_runner_did_not_wait_for_is_read_from_the_bag(tmp_path):
     (run by ``--rescore``) takes the first active /safe_stop of the bag inside the event's
     window; a stop after the window stays a miss."""
     from reachset_ros import bags
-    from reachset_ros.nodes.campaign_driver import bag_stops
+    from reachset_ros.workflows.campaign import bag_stops
     T0, DT = 10**18, 4_000_000
     SS = bags.typestore().types[bags.SAFE_STOP_TYPE]
     ev = cp.Event(42, "sim", 1.0, "stop", fault="frozen", joint="a")
@@ -239,7 +239,7 @@ def test_the_stops_arrival_at_the_controller_is_read_from_the_bags_brake_command
     (its restarted successor's first command) is not taken. ``score`` reports it apart from
     the listener's arrival."""
     from reachset_ros import bags
-    from reachset_ros.nodes.campaign_driver import bag_brakes
+    from reachset_ros.workflows.campaign import bag_brakes
     T0, DT = 10**18, 4_000_000
     BC = bags.typestore().types[bags.messages.BRAKE_TYPE]
     path = tmp_path / "block038"

@@ -442,7 +442,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     import subprocess
     import sys
     from std_msgs.msg import Header
-    from reachset_ros.nodes.demo_driver import LOCKSTEP_TIMEOUT, MONITOR_TOPICS
+    from reachset_ros.workflows.demo import LOCKSTEP_TIMEOUT, MONITOR_TOPICS
     p = lwa4p_joint_plant()
     horizon = 125
     # about 3x the sets identified on 15 s of this closed loop (alpha_w <= 1.9, alpha_v <= 3.6e-4)
@@ -859,7 +859,7 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     common = {"joints": ALL_JOINTS, **gains, "allow_uncertified": True}   # the model has no gains
     rec = Recorder("reset_listener", {"joint_states": JointState, "safe_stop": SafeStop,
                                       "conformance/status": ConformanceStatus})
-    from reachset_ros.nodes.demo_driver import LOCKSTEP_TIMEOUT
+    from reachset_ros.workflows.demo import LOCKSTEP_TIMEOUT
     # lockstep timeout 0.3 s (the demo's; default 50 ms): in CI (and 1 of 10 runs here) a false
     # stop at k = 1 (N y_a twice the bound on arm_1) came before the fault. A step on a stale
     # command, an input /plant_input does not show, is the known way to that; with 50 ms the

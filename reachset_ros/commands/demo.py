@@ -56,7 +56,7 @@ def add_arguments(p):
 
 
 def run(args):
-    from ..nodes.demo_driver import run_demo  # heavy optional dependency: rclpy (cli.py imports every command)
+    from ..workflows.demo import run_demo  # heavy optional dependency: rclpy (cli.py imports every command)
     if args.inflation is not None and not (np.isfinite(args.inflation) and args.inflation >= 0):
         raise ReachsetError("--inflation must be finite and >= 0")
     if args.duration <= 0 or args.train <= 0:
@@ -85,7 +85,7 @@ def run(args):
         # SIGTERM as SIGINT: the story stops at its next step and every node it started is
         # stopped (the synthesis node stops its `reachset synthesize`), then exit 128 + signal
         with launch.StopRequest() as stop:
-            res = run_demo(workdir, record, duration=args.duration, fault_at=fault_at, train=args.train,
+            res = run_demo(workdir=workdir, record=record, duration=args.duration, fault_at=fault_at, train=args.train,
                            seed=args.seed, log=log, fault=fault, inflation=args.inflation, stop=stop)
             stop.check()
     except RuntimeError as e:

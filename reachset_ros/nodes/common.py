@@ -7,9 +7,9 @@ import time
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, Parameter, ParameterDescriptor, ParameterType,
                                 ParameterValue)
-from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -244,9 +244,11 @@ def spin_until_complete(node, future, timeout):
 RESEND_AFTER = 2.0
 
 
-def call_parameter_service(node, client, request, timeout):
-    """Call a parameter service (idempotent: get, set), sending the request again every
-    ``RESEND_AFTER`` s while no answer has come, until ``timeout`` s have passed.
+def call_parameter_service(node, send, timeout):
+    """Call a parameter service (idempotent: get, set) through ``send()`` (one of the request
+    methods of an :class:`rclpy.parameter_client.AsyncParameterClient`, returning a future),
+    sending the request again every ``RESEND_AFTER`` s while no answer has come, until
+    ``timeout`` s have passed.
 
     A node that has just started can answer before Fast DDS has matched the caller's reply
     reader; the answer is then dropped ("failed to send response (timeout): client will not
@@ -257,7 +259,7 @@ def call_parameter_service(node, client, request, timeout):
     deadline = time.monotonic() + timeout
     futures = []
     while time.monotonic() < deadline:
-        futures.append(client.call_async(request))
+        futures.append(send())
         spin_until_complete(node, futures[-1], min(RESEND_AFTER, deadline - time.monotonic()))
         done = [f for f in futures if f.done()]
         if done:
@@ -265,31 +267,50 @@ def call_parameter_service(node, client, request, timeout):
     return None
 
 
+class _ParameterClient:
+    """rclpy's :class:`~rclpy.parameter_client.AsyncParameterClient` of node ``target``, used
+    for one request and closed: ``ready(service)`` waits for that one service (a node may
+    offer only some of the parameter services), ``close()`` destroys the clients it made."""
+
+    def __init__(self, node, target):
+        self.node = node
+        before = set(node.clients)
+        self.client = AsyncParameterClient(node, f"/{target}")
+        self._made = {c.srv_name.rsplit("/", 1)[-1]: c for c in node.clients if c not in before}
+
+    def ready(self, service, timeout):
+        return self._made[service].wait_for_service(timeout_sec=timeout)
+
+    def close(self):
+        for c in self._made.values():
+            self.node.destroy_client(c)
+
+
 def set_remote_parameters(node, target: str, values: dict, timeout=10.0, atomically=True):
-    """Set parameters of node ``target`` through its parameter service.
+    """Set parameters of node ``target`` through its parameter service (rclpy's
+    ``AsyncParameterClient``: ``set_parameters_atomically`` or ``set_parameters``).
 
     Returns ``(ok, reason)``; with ``atomically`` all are applied together or none.
     """
-    srv_type = SetParametersAtomically if atomically else SetParameters
-    suffix = "set_parameters_atomically" if atomically else "set_parameters"
-    client = node.create_client(srv_type, f"/{target}/{suffix}")
+    params = [Parameter(name=k, value=parameter_value(v)) for k, v in values.items()]
+    pc = _ParameterClient(node, target)
     try:
-        if not client.wait_for_service(timeout_sec=timeout):
+        if not pc.ready("set_parameters_atomically" if atomically else "set_parameters", timeout):
             return False, f"{target}: parameter service not available"
-        req = srv_type.Request()
-        req.parameters = [Parameter(name=k, value=parameter_value(v)) for k, v in values.items()]
-        res = call_parameter_service(node, client, req, timeout)
+        send = pc.client.set_parameters_atomically if atomically else pc.client.set_parameters
+        res = call_parameter_service(node, lambda: send(params), timeout)
         if res is None:
             return False, f"{target}: parameter service timed out"
         results = [res.result] if atomically else list(res.results)
         bad = [r.reason for r in results if not r.successful]
         return (not bad), "; ".join(bad)
     finally:
-        node.destroy_client(client)
+        pc.close()
 
 
 def get_remote_parameters(node, target: str, names, timeout=10.0):
-    """Read parameters of node ``target`` through its ``get_parameters`` service.
+    """Read parameters of node ``target`` through its ``get_parameters`` service (rclpy's
+    ``AsyncParameterClient.get_parameters``).
 
     Parameters
     ----------
@@ -312,11 +333,11 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
         Empty on success, else one line naming ``target`` and the problem.
     """
     names = list(names)
-    client = node.create_client(GetParameters, f"/{target}/get_parameters")
+    pc = _ParameterClient(node, target)
     try:
-        if not client.wait_for_service(timeout_sec=timeout):
+        if not pc.ready("get_parameters", timeout):
             return None, f"{target}: parameter service not available"
-        res = call_parameter_service(node, client, GetParameters.Request(names=names), timeout)
+        res = call_parameter_service(node, lambda: pc.client.get_parameters(names), timeout)
         if res is None:
             return None, f"{target}: parameter service timed out"
         got = list(res.values)
@@ -328,7 +349,8 @@ def get_remote_parameters(node, target: str, names, timeout=10.0):
             return None, f"{target}: no parameter {unset[0]}"
         return values, ""
     finally:
-        node.destroy_client(client)
+        pc.close()
+
 
 #: /conformance/status: reliable with a deep queue, so a slow subscriber (a recorder under
 #: load) does not lose ticks.

@@ -2,7 +2,8 @@
 
 ``run_selftest`` starts :mod:`reachset_ros.nodes.talker` as a separate process, receives
 its ``/plant_input`` over Fast DDS, sets the talker's ``acceleration`` parameter through its
-``set_parameters`` service and waits until the published value follows.
+``set_parameters`` service (rclpy's ``AsyncParameterClient``) and waits until the published
+value follows.
 """
 import os
 import subprocess
@@ -10,9 +11,9 @@ import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from reachset_msgs.msg import PlantInput
 
 from ..launch import use_dds_profiles
@@ -31,7 +32,7 @@ def run_selftest(timeout: float = 30.0, value: float = 1.5) -> dict:
     received = []
     node.create_subscription(PlantInput, "plant_input",
                              lambda m: received.append((tuple(m.name), tuple(m.acceleration))), 10)
-    client = node.create_client(SetParameters, "/plant_input_talker/set_parameters")
+    client = AsyncParameterClient(node, "/plant_input_talker")
     result = {"talker_pid": talker.pid}
     try:
         deadline = time.monotonic() + timeout
@@ -40,12 +41,9 @@ def run_selftest(timeout: float = 30.0, value: float = 1.5) -> dict:
         if not received:
             raise RuntimeError("no /plant_input received from the talker process")
         result["first"] = {"name": list(received[0][0]), "acceleration": list(received[0][1])}
-        if not client.wait_for_service(timeout_sec=max(0.1, deadline - time.monotonic())):
+        if not client.wait_for_services(timeout_sec=max(0.1, deadline - time.monotonic())):
             raise RuntimeError("talker's set_parameters service not available")
-        req = SetParameters.Request()
-        req.parameters = [Parameter(name="acceleration", value=ParameterValue(
-            type=ParameterType.PARAMETER_DOUBLE, double_value=float(value)))]
-        fut = client.call_async(req)
+        fut = client.set_parameters([Parameter("acceleration", Parameter.Type.DOUBLE, float(value))])
         rclpy.spin_until_future_complete(node, fut, timeout_sec=max(0.1, deadline - time.monotonic()))
         if not fut.done() or not fut.result().results[0].successful:
             raise RuntimeError("setting the talker's parameter failed")

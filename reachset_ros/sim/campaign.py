@@ -151,7 +151,7 @@ class Outcome:
     ahead_steps: int = 0              # simulator steps ahead of the monitor's verdicts during the event (ditto)
     #: where the fault becomes observable, if later than fault_ns: a frozen sensor's joint's
     #: first reference motion after the fault; a link loss's first lost sample (from the bag,
-    #: campaign_driver.link_onsets)
+    #: workflows.campaign.link_onsets)
     observable_ns: int = 0
     #: frozen sensor stopped while its joint's reference never exceeded FROZEN_MOTION after the
     #: fault (a slow move: the stop came before the window starts, so it cannot be late; the
@@ -159,7 +159,7 @@ class Outcome:
     stopped_before_motion: bool = False
     #: the stop's arrival at the controller, bounded from above: the stamp of the first
     #: measurement the controller commanded with the stop (``BrakeCommand.braking_since_ns``
-    #: from the bag, campaign_driver.bag_brakes). In lockstep the simulation cannot step past
+    #: from the bag, workflows.campaign.bag_brakes). In lockstep the simulation cannot step past
     #: the measurement whose command the controller owes, so the stop reached the controller
     #: before the simulation's clock passed this stamp. 0: no braking command (killed
     #: controller or simulator, or none recorded)
@@ -351,48 +351,8 @@ def score(outcomes, apparatus_stops=()):
     late = [o for o in arrived if not o.stopped_before_motion and o.latency_ns() > detect_within_s(o.event) * 1e9]
     stopped = [o for o in arrived if o not in late]
     missed = [o for o in faults if not o.stops] + late
-    false = []
-    for o in outcomes:
-        for s in o.quiet_stops:
-            false.append({"event": o.event.label(), "where": "fault-free stretch before it", "stop": list(s),
-                          "bag": o.bag})
-        if o.event.expect == "none" and o.stops:
-            false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
-                          "bag": o.bag})
-    # latencies of every stop that arrived, late ones included
-    lat = [o.latency_ns() * 1e-6 for o in arrived]
-    stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in arrived]
-    detection = [(o.stops[0][1] - o.evidence_from()) * 1e-6 for o in arrived]
-    by_kind, stamp_by_kind = {}, {}
-    for o, x, y in zip(arrived, lat, stamp_lat):
-        key = _kind_key(o.event)
-        by_kind.setdefault(key, []).append(x)
-        stamp_by_kind.setdefault(key, []).append(y)
-    # the same at the controller, the node that acts on the stop (a killed controller or
-    # simulator has none to act: the drives' watchdog brakes)
-    acting = [o for o in arrived if controller_acts(o.event)]
-    at_ctl = [o for o in acting if o.controller_ns]
-    ctl_lat = [(o.controller_ns - o.latency_from()) * 1e-6 for o in at_ctl]
-    ctl_det = [(o.controller_ns - o.evidence_from()) * 1e-6 for o in at_ctl]
-    ctl_by_kind = {}
-    for o, x in zip(at_ctl, ctl_lat):
-        ctl_by_kind.setdefault(_kind_key(o.event), []).append(x)
-    wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
-    # braking after the stop's arrival at the controller: every stop but a killed process'
-    # (after a SIGKILL the other participants' sends to its shared-memory ports can block for
-    # seconds, docs/reliability.md; a killed controller cannot brake, the drives' watchdog does)
-    braking = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind != "kill"]
-    braking_killed = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind == "kill"]
-    unbraked = [o.event.label() for o in stopped if o.braking_ticks is None and o.event.kind != "kill"]
-    judged = [o for o in outcomes if o.stops and o.rest is not None and o.rest["ok"] is not None]
-    not_at_rest = [{"event": o.event.label(), "fault_ns": o.fault_ns, "rest": o.rest, "bag": o.bag}
-                   for o in judged if not o.rest["ok"]]
-    rest_s = [o.rest["rest_s"] for o in judged if o.rest.get("rest_s") is not None]
-    travel = [o.rest["travel_rad"] for o in judged if o.rest.get("travel_rad") is not None]
+    false = _false_stops(outcomes)
     either = [o for o in outcomes if o.event.expect == "either"]
-
-    def stats(x):
-        return {"n": len(x), "p50": _pct(x, 50), "p99": _pct(x, 99), "max": max(x) if x else None}
     return {
         "events": len(outcomes),
         "faults_injected": len(faults),
@@ -405,42 +365,121 @@ def score(outcomes, apparatus_stops=()):
         "either": {"events": len(either), "stopped": sum(1 for o in either if o.stops)},
         "fault_free_minutes": sum(o.quiet_sim_s for o in outcomes) / 60.0,
         "burner_events": sum(1 for o in outcomes if o.event.burners),
-        "latency_ms": stats(lat),
-        "latency_ms_by_kind": {k: stats(v) for k, v in sorted(by_kind.items())},
-        "stamp_latency_ms": stats(stamp_lat),
-        "stamp_latency_ms_by_kind": {k: stats(v) for k, v in sorted(stamp_by_kind.items())},
-        "detection_ms": stats(detection),
-        # the same with and without the CPU burners (normal priority, like the suite's processes)
-        "detection_ms_burners": stats([d for o, d in zip(arrived, detection) if o.event.burners]),
-        "detection_ms_quiet": stats([d for o, d in zip(arrived, detection) if not o.event.burners]),
-        "controller_latency_ms": stats(ctl_lat),
-        "controller_latency_ms_by_kind": {k: stats(v) for k, v in sorted(ctl_by_kind.items())},
-        "controller_detection_ms": stats(ctl_det),
-        "controller_detection_ms_burners": stats([d for o, d in zip(at_ctl, ctl_det) if o.event.burners]),
-        "controller_detection_ms_quiet": stats([d for o, d in zip(at_ctl, ctl_det) if not o.event.burners]),
-        "controller_unmeasured": [o.event.label() for o in acting if not o.controller_ns],
-        "wall_latency_ms_killed": stats(wall),
-        "braking_ticks_max": max(braking) if braking else None,
-        "braking_measured": len(braking),
-        "braking_ticks_killed": stats(braking_killed),
-        "unbraked": unbraked,
-        "rest_judged": len(judged),
-        "at_rest": len(judged) - len(not_at_rest),
-        "rest_s_max": max(rest_s) if rest_s else None,
-        "travel_rad_max": max(travel) if travel else None,
-        "not_at_rest": not_at_rest,
-        "recovery_stops": sum(o.recovery_stops for o in outcomes),
-        "stale_steps": sum(o.stale_steps for o in outcomes),
-        "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
-        "stale_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "stale_steps").items() if v},
-        "ahead_steps": sum(o.ahead_steps for o in outcomes),
-        "ahead_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "ahead_steps").items() if v},
+        **_latency_rows(arrived),
+        **_controller_rows(arrived),
+        **_braking_rows(stopped),
+        **_rest_rows(outcomes),
+        **_step_rows(outcomes),
         "apparatus_stops": [list(a) for a in apparatus_stops],
         "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag,
                     "note": (f"stop {o.latency_ns() * 1e-6:.0f} ms after the fault's stamp, "
                              f"after the {detect_within_s(o.event):g} s window" if o in late else o.note)}
                    for o in missed],
         "false": false,
+    }
+
+
+def _stats(x):
+    return {"n": len(x), "p50": _pct(x, 50), "p99": _pct(x, 99), "max": max(x) if x else None}
+
+
+def _false_stops(outcomes):
+    """The false stops of :func:`score`: in a fault-free stretch, or after an event expecting none."""
+    false = []
+    for o in outcomes:
+        for s in o.quiet_stops:
+            false.append({"event": o.event.label(), "where": "fault-free stretch before it", "stop": list(s),
+                          "bag": o.bag})
+        if o.event.expect == "none" and o.stops:
+            false.append({"event": o.event.label(), "where": "after the event", "stop": list(o.stops[0]),
+                          "bag": o.bag})
+    return false
+
+
+def _latency_rows(arrived):
+    """:func:`score`'s latencies at the listener of every stop that arrived, late ones included."""
+    lat = [o.latency_ns() * 1e-6 for o in arrived]
+    stamp_lat = [(o.stops[0][0] - o.latency_from()) * 1e-6 for o in arrived]
+    detection = [(o.stops[0][1] - o.evidence_from()) * 1e-6 for o in arrived]
+    by_kind, stamp_by_kind = {}, {}
+    for o, x, y in zip(arrived, lat, stamp_lat):
+        key = _kind_key(o.event)
+        by_kind.setdefault(key, []).append(x)
+        stamp_by_kind.setdefault(key, []).append(y)
+    return {
+        "latency_ms": _stats(lat),
+        "latency_ms_by_kind": {k: _stats(v) for k, v in sorted(by_kind.items())},
+        "stamp_latency_ms": _stats(stamp_lat),
+        "stamp_latency_ms_by_kind": {k: _stats(v) for k, v in sorted(stamp_by_kind.items())},
+        "detection_ms": _stats(detection),
+        # the same with and without the CPU burners (normal priority, like the suite's processes)
+        "detection_ms_burners": _stats([d for o, d in zip(arrived, detection) if o.event.burners]),
+        "detection_ms_quiet": _stats([d for o, d in zip(arrived, detection) if not o.event.burners]),
+    }
+
+
+def _controller_rows(arrived):
+    """:func:`score`'s latencies at the controller, the node that acts on the stop (a killed
+    controller or simulator has none to act: the drives' watchdog brakes)."""
+    acting = [o for o in arrived if controller_acts(o.event)]
+    at_ctl = [o for o in acting if o.controller_ns]
+    ctl_lat = [(o.controller_ns - o.latency_from()) * 1e-6 for o in at_ctl]
+    ctl_det = [(o.controller_ns - o.evidence_from()) * 1e-6 for o in at_ctl]
+    ctl_by_kind = {}
+    for o, x in zip(at_ctl, ctl_lat):
+        ctl_by_kind.setdefault(_kind_key(o.event), []).append(x)
+    return {
+        "controller_latency_ms": _stats(ctl_lat),
+        "controller_latency_ms_by_kind": {k: _stats(v) for k, v in sorted(ctl_by_kind.items())},
+        "controller_detection_ms": _stats(ctl_det),
+        "controller_detection_ms_burners": _stats([d for o, d in zip(at_ctl, ctl_det) if o.event.burners]),
+        "controller_detection_ms_quiet": _stats([d for o, d in zip(at_ctl, ctl_det) if not o.event.burners]),
+        "controller_unmeasured": [o.event.label() for o in acting if not o.controller_ns],
+    }
+
+
+def _braking_rows(stopped):
+    """:func:`score`'s wall latency of killed processes and the braking after each stop."""
+    wall = [o.wall_latency_s * 1e3 for o in stopped if o.event.kind == "kill" and o.wall_latency_s is not None]
+    # braking after the stop's arrival at the controller: every stop but a killed process'
+    # (after a SIGKILL the other participants' sends to its shared-memory ports can block for
+    # seconds, docs/reliability.md; a killed controller cannot brake, the drives' watchdog does)
+    braking = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind != "kill"]
+    braking_killed = [o.braking_ticks for o in stopped if o.braking_ticks is not None and o.event.kind == "kill"]
+    return {
+        "wall_latency_ms_killed": _stats(wall),
+        "braking_ticks_max": max(braking) if braking else None,
+        "braking_measured": len(braking),
+        "braking_ticks_killed": _stats(braking_killed),
+        "unbraked": [o.event.label() for o in stopped if o.braking_ticks is None and o.event.kind != "kill"],
+    }
+
+
+def _rest_rows(outcomes):
+    """:func:`score`'s judgement of each stop's effect (:func:`judge_rest`)."""
+    judged = [o for o in outcomes if o.stops and o.rest is not None and o.rest["ok"] is not None]
+    not_at_rest = [{"event": o.event.label(), "fault_ns": o.fault_ns, "rest": o.rest, "bag": o.bag}
+                   for o in judged if not o.rest["ok"]]
+    rest_s = [o.rest["rest_s"] for o in judged if o.rest.get("rest_s") is not None]
+    travel = [o.rest["travel_rad"] for o in judged if o.rest.get("travel_rad") is not None]
+    return {
+        "rest_judged": len(judged),
+        "at_rest": len(judged) - len(not_at_rest),
+        "rest_s_max": max(rest_s) if rest_s else None,
+        "travel_rad_max": max(travel) if travel else None,
+        "not_at_rest": not_at_rest,
+    }
+
+
+def _step_rows(outcomes):
+    """:func:`score`'s recovery stops and the simulator's stale and ahead-of-monitor steps."""
+    return {
+        "recovery_stops": sum(o.recovery_stops for o in outcomes),
+        "stale_steps": sum(o.stale_steps for o in outcomes),
+        "stale_steps_burners": sum(o.stale_steps for o in outcomes if o.event.burners),
+        "stale_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "stale_steps").items() if v},
+        "ahead_steps": sum(o.ahead_steps for o in outcomes),
+        "ahead_steps_by_event": {k: v for k, v in _steps_by_event(outcomes, "ahead_steps").items() if v},
     }
 
 
