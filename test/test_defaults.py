@@ -23,12 +23,16 @@ from reachset_ros.systems import gains as gm
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config"
 GAIN_NODES = ("observer_node", "controller_node")
+#: the gain nodes' parameters whose defaults the table holds
+NODE_PARAMS = ("u_max", "u_ff_bound", *defaults.get("gains.types"), *defaults.get("gains.keys"))
 
 
 def _startup_param(name, joints=JOINT_NAMES):
     """The value a gain node's parameter ``name`` takes by default, from the table."""
     if name == "u_max":
         return [defaults.get("lwa4p.u_max")[j] for j in joints]
+    if name == "u_ff_bound":
+        return defaults.get("gains.u_ff")
     value = defaults.get("gains.startup")[name]
     return [value] if name in defaults.get("gains.keys") else value
 
@@ -105,7 +109,7 @@ def test_lwa4p_yaml_gain_nodes_agree():
     for node in GAIN_NODES:
         params = cfg[node]["ros__parameters"]
         joints = params.get("joints", list(JOINT_NAMES))
-        for name in ("u_max", *defaults.get("gains.types"), *defaults.get("gains.keys")):
+        for name in NODE_PARAMS:
             if name in params:
                 assert params[name] == _startup_param(name, joints), f"config/lwa4p.yaml {node}.{name}"
 
@@ -130,6 +134,7 @@ def test_analyze_argparse_defaults_agree():
     hg, eso = defaults.table("gains.hg"), defaults.table("gains.eso")
     assert (args.h1, args.h2, args.eps) == (hg["h1"], hg["h2"], hg["eps"]) and eso["eps"] == hg["eps"]
     assert (args.l1, args.l2, args.l3, args.eso_input) == (eso["l1"], eso["l2"], eso["l3"], eso["eso_input"])
+    assert args.u_ff == defaults.get("gains.u_ff") == syncfg.DEFAULT_CONFIG["u_ff"]
     assert analyze._DEFAULTS["hg"] == {"controller": "static", **defaults.get("gains.feedback.table_ii"),
                                        **defaults.table("analyze.hg")}
     assert analyze._DEFAULTS["eso"] == {"controller": "compensated", **defaults.get("gains.feedback.paper"),
@@ -170,7 +175,7 @@ def _plain(v):
 @pytest.mark.parametrize("node", GAIN_NODES)
 def test_node_declared_defaults_agree(declared, node):
     params = declared[node]
-    for name in ("u_max", *defaults.get("gains.types"), *defaults.get("gains.keys")):
+    for name in NODE_PARAMS:
         assert _plain(params[name]) == _startup_param(name, params["joints"]), f"{node}.{name}"
 
 
@@ -186,5 +191,5 @@ def test_docs_nodes_md_agrees(node):
     node_docs = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(node_docs)
     rows = _doc_rows(node)
-    for name in ("u_max", *defaults.get("gains.types"), *defaults.get("gains.keys")):
+    for name in NODE_PARAMS:
         assert rows[name] == node_docs.literal(_startup_param(name)), f"docs/nodes.md {node}.{name}"

@@ -89,7 +89,8 @@ def add_arguments(p):
     p.add_argument("--alpha-v", type=float, default=None, metavar="F",
                    help=f"scaling of the measurement-noise generator (default {_num(_DEFAULTS['hg']['alpha_v'])})")
     p.add_argument("--dt", type=float, default=0.004, help="sampling time in s (default 0.004)")
-    p.add_argument("--u-ff", type=float, default=2.0, help="half-width of U_ff in rad/s^2 (default 2)")
+    p.add_argument("--u-ff", type=float, default=defaults.get("gains.u_ff"),
+                   help=f"half-width of U_ff in rad/s^2 (default {_num(defaults.get('gains.u_ff'))})")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -85,9 +85,9 @@ def declare_certificate_parameters(node):
                                                   "U_p with its sets and inflation)"))
     node.declare_parameter("u_max", default_u_max(),
                            desc("U_p half-width per joint, rad/s^2"))
-    node.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified "
-                                                   "for; references beyond it are flagged reference_out_of_class",
-                                                   0.0, 1000.0))
+    node.declare_parameter("u_ff_bound", defaults.get("gains.u_ff"),
+                           desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified for; references "
+                                "beyond it are flagged reference_out_of_class", 0.0, 1000.0))
     node.declare_parameter("allow_uncertified", False,
                            desc("run gains that no model certifies (no model_file, or a joint not in it) on closed-"
                                 "loop stability alone; without it they are refused"))

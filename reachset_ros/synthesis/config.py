@@ -36,8 +36,6 @@ U_MARGIN = 1e-4  # relative slack of R_u inside U_p: absorbs the final outer-bou
 defaults.register("synthesis", {
     "u_max_unlisted": (26.0, "U_p half-width, rad/s^2, of a joint the synthesis configuration does not list "
                              "(its u_max.default; the LWA-4P's axes 1-4 value of paper Table I)"),
-    "u_ff": (2.0, "U_ff = [-u_ff, u_ff], the bound of the feedforward qdd_d, rad/s^2 (paper Sec. IV: U_ref = "
-                  "[-2, 2])"),
 }, owner=__name__)
 
 
@@ -55,7 +53,7 @@ DEFAULT_CONFIG = {
     "format": "reachset_ros/synthesis-config/1",
     "search": {"sobol_log2": 6, "local_starts": 3, "local_maxfev": 120, "seed": 0,
                "max_spectral_radius": 0.999},
-    "u_ff": defaults.get("synthesis.u_ff"),
+    "u_ff": defaults.get("gains.u_ff"),
     "u_max": {"default": defaults.get("synthesis.u_max_unlisted"), **defaults.get("lwa4p.u_max")},
     "structures": {
         "hg": {"controller": family_controller("hg"), "free": ["omega", "zeta"],

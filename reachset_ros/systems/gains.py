@@ -78,6 +78,11 @@ defaults.register("gains", {
                 "gains are Table III's, used when only the observer is switched to eso"),
 }, owner=__name__)
 
+defaults.register("gains", {
+    "u_ff": (2.0, "U_ff = [-u_ff, u_ff], the bound of the feedforward qdd_d, rad/s^2, that R*_u is certified for "
+                  "(paper Sec. IV: U_ref = [-2, 2]): the synthesis configuration's u_ff, the nodes' u_ff_bound, "
+                  "reachset analyze --u-ff, check_gains and a model's gains that record no u_ff"),
+}, owner=__name__)
 defaults.register("lwa4p", {
     "u_max": ({"arm_1_joint": 26.0, "arm_2_joint": 26.0, "arm_3_joint": 26.0, "arm_4_joint": 26.0,
                "arm_5_joint": 100.0, "arm_6_joint": 100.0},
@@ -365,8 +370,8 @@ def max_certified_inflation(gains: Gains, joint_sets, u_max: float, u_ff: float,
     return i
 
 
-def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = 2.0, plant=None, inflation: float = 0.0,
-                u_e_ff=None):
+def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = defaults.get("gains.u_ff"), plant=None,
+                inflation: float = 0.0, u_e_ff=None):
     """Would these gains be safe under the sets the monitor checks?
 
     Returns ``(ok, reason, analysis)`` of :func:`certify`: ``ok`` is False when the closed
@@ -382,7 +387,7 @@ def model_limits(joint_sets):
     g = joint_sets.gains or {}
     if "u_max" not in g:
         raise ReachsetError("model: the joint's gains do not record u_max (not written by the synthesis)")
-    return float(g["u_max"]), float(g.get("u_ff", 2.0))
+    return float(g["u_max"]), float(g.get("u_ff", defaults.get("gains.u_ff")))
 
 
 def certified_inflation(model, requested: float):
