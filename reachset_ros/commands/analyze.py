@@ -17,9 +17,11 @@ an error: ``stable`` is false and the set keys are null.
 """
 import math
 
+from .. import defaults
 from ..errors import ReachsetError
 from ..systems.closedloop import analyze, close_loop
 from ..systems.controllers import compensated_feedback, static_feedback
+from ..systems.gains import family_controller
 from ..systems.observers import extended_state_observer, high_gain_observer
 from ..systems.plant import lwa4p_joint_plant
 from . import emit
@@ -27,36 +29,68 @@ from . import emit
 NAME = "analyze"
 HELP = "reachable tracking error R_e and reachable input R_u of one joint's closed loop"
 
+defaults.register("analyze.hg", {
+    "alpha_w": ([0.0348, 3.59], "scalings of the two process-disturbance generators identified for axis 1 "
+                                "(paper Sec. IV-A, Table II)"),
+    "alpha_v": (3.49e-5, "scaling of the measurement-noise generator identified for axis 1 (paper Table II)"),
+}, owner=__name__)
+defaults.register("analyze.eso", {
+    "alpha_w": ([0.0234, 3.587], "scalings of the two process-disturbance generators identified for axis 1 "
+                                 "(paper Sec. IV-C, Table III)"),
+    "alpha_v": (3.49e-5, "scaling of the measurement-noise generator identified for axis 1 (paper Table III)"),
+}, owner=__name__)
+
+#: per observer: the loop of the paper's experiment with that observer (module docstring):
+#: its family's feedback law (defaults ``gains.hg.controller`` / ``gains.eso.controller``) at
+#: Table II's omega, zeta (hg, defaults ``gains.feedback.table_ii``) or the paper's fixed ones
+#: (eso, ``gains.feedback.paper``), and axis 1's identified sets (``analyze.hg``, ``analyze.eso``)
 _DEFAULTS = {
-    "hg": dict(controller="static", omega=24.40, zeta=0.96, alpha_w=[0.0348, 3.59], alpha_v=3.49e-5),
-    "eso": dict(controller="compensated", omega=20.0, zeta=1.0, alpha_w=[0.0234, 3.587], alpha_v=3.49e-5),
+    "hg": dict(controller=family_controller("hg"), **defaults.get("gains.feedback.table_ii"),
+               **defaults.table("analyze.hg")),
+    "eso": dict(controller=family_controller("eso"), **defaults.get("gains.feedback.paper"),
+                **defaults.table("analyze.eso")),
 }
+_HG, _ESO = defaults.table("gains.hg"), defaults.table("gains.eso")
+
+
+def _num(v):
+    """A default as the help writes it: ``3.49e-5``, ``20``, ``0.01``."""
+    return f"{v:g}".replace("e-0", "e-").replace("e+0", "e+")
+
+
+def _pair(key, hg_fmt=_num):
+    return f"{hg_fmt(_DEFAULTS['hg'][key])} hg / {_num(_DEFAULTS['eso'][key])} eso"
 
 
 def add_arguments(p):
     p.add_argument("--observer", choices=["hg", "eso"], default="hg",
                    help="high-gain (hg, default) or extended-state observer (eso)")
-    p.add_argument("--h1", type=float, default=15.0, help="HG gain h1 (default 15, paper Sec. IV-A)")
-    p.add_argument("--h2", type=float, default=30.0, help="HG gain h2 (default 30)")
-    p.add_argument("--l1", type=float, default=57.1, help="ESO gain l1 (default 57.1, Table III axis 1)")
-    p.add_argument("--l2", type=float, default=103.3, help="ESO gain l2 (default 103.3)")
-    p.add_argument("--l3", type=float, default=18.1, help="ESO gain l3 (default 18.1)")
-    p.add_argument("--eps", type=float, default=0.01, help="observer gain scaling epsilon (default 0.01)")
-    p.add_argument("--eso-input", choices=["previous", "current"], default="previous",
+    p.add_argument("--h1", type=float, default=_HG["h1"], help=f"HG gain h1 (default {_HG['h1']:g}, paper Sec. IV-A)")
+    p.add_argument("--h2", type=float, default=_HG["h2"], help=f"HG gain h2 (default {_HG['h2']:g})")
+    p.add_argument("--l1", type=float, default=_ESO["l1"],
+                   help=f"ESO gain l1 (default {_ESO['l1']:g}, Table III axis 1)")
+    p.add_argument("--l2", type=float, default=_ESO["l2"], help=f"ESO gain l2 (default {_ESO['l2']:g})")
+    p.add_argument("--l3", type=float, default=_ESO["l3"], help=f"ESO gain l3 (default {_ESO['l3']:g})")
+    p.add_argument("--eps", type=float, default=_HG["eps"],
+                   help=f"observer gain scaling epsilon (default {_HG['eps']:g})")
+    p.add_argument("--eso-input", choices=["previous", "current"], default=_ESO["eso_input"],
                    help="plant input fed to the ESO at tick k: u_p[k-1] (default, reproduces the paper) "
                         "or u_p[k] (algebraic loop, solved exactly)")
     p.add_argument("--controller", choices=["static", "compensated"], default=None,
-                   help="static or disturbance-compensated feedback (default: static with hg, "
-                        "compensated with eso)")
-    p.add_argument("--omega", type=float, default=None, help="natural frequency (default 24.40 hg / 20 eso)")
-    p.add_argument("--zeta", type=float, default=None, help="damping ratio (default 0.96 hg / 1 eso)")
+                   help=f"static or disturbance-compensated feedback (default: {_DEFAULTS['hg']['controller']} with "
+                        f"hg, {_DEFAULTS['eso']['controller']} with eso)")
+    p.add_argument("--omega", type=float, default=None,
+                   help=f"natural frequency (default {_pair('omega', '{:.2f}'.format)})")
+    p.add_argument("--zeta", type=float, default=None, help=f"damping ratio (default {_pair('zeta')})")
     p.add_argument("--alpha-w", type=float, nargs=2, default=None, metavar="F",
-                   help="scalings of the two process-disturbance generators (default 0.0348 3.59 hg / "
-                        "0.0234 3.587 eso)")
+                   help="scalings of the two process-disturbance generators (default "
+                        f"{' '.join(map(str, _DEFAULTS['hg']['alpha_w']))} hg / "
+                        f"{' '.join(map(str, _DEFAULTS['eso']['alpha_w']))} eso)")
     p.add_argument("--alpha-v", type=float, default=None, metavar="F",
-                   help="scaling of the measurement-noise generator (default 3.49e-5)")
+                   help=f"scaling of the measurement-noise generator (default {_num(_DEFAULTS['hg']['alpha_v'])})")
     p.add_argument("--dt", type=float, default=0.004, help="sampling time in s (default 0.004)")
-    p.add_argument("--u-ff", type=float, default=2.0, help="half-width of U_ff in rad/s^2 (default 2)")
+    p.add_argument("--u-ff", type=float, default=defaults.get("gains.u_ff"),
+                   help=f"half-width of U_ff in rad/s^2 (default {_num(defaults.get('gains.u_ff'))})")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -62,6 +62,7 @@ from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, d
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
@@ -153,7 +154,8 @@ class ControllerNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(0.002, self.on_wait_timer)
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.param_request = StagedRequest()
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
 
     #: True in the managed (lifecycle) variant: configure() runs on the configure transition
     MANAGED = False
@@ -263,11 +265,22 @@ class ControllerNode(Node):
             self.transient = None
 
     def on_set_parameters(self, params):
-        result = self.check_and_apply(params)
-        log_gain_change(self, params, result)
+        """Validate a request (on_set): the pair's gate with the proposed values and model; a
+        refused request is logged (PRIVILEGED) and leaves the running configuration as it was."""
+        result, cfg = self.check_request(params)
+        if result.successful:
+            self.param_request.hold(params, cfg)
+        else:
+            log_gain_change(self, params, result)
         return result
 
-    def check_and_apply(self, params):
+    def post_set_parameters(self, params):
+        """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
+        self.apply(self.param_request.take(params), "gain change")
+        log_gain_change(self, params, SetParametersResult(successful=True))
+
+    def check_request(self, params):
+        """``(SetParametersResult, configuration or None)`` of a proposed request (nothing applied)."""
         values = proposed_values(self, params)
         model = self.model
         for p in params:
@@ -275,13 +288,12 @@ class ControllerNode(Node):
                 try:
                     model = mdl.load(p.value) if p.value else None
                 except ReachsetError as e:
-                    return SetParametersResult(successful=False, reason=str(e))
+                    return SetParametersResult(successful=False, reason=str(e)), None
         try:
             cfg = self.validate(values, model)
         except ReachsetError as e:
-            return SetParametersResult(successful=False, reason=str(e))
-        self.apply(cfg, "gain change")
-        return SetParametersResult(successful=True)
+            return SetParametersResult(successful=False, reason=str(e)), None
+        return SetParametersResult(successful=True), cfg
 
     # -- data ----------------------------------------------------------------------------
     def on_reference(self, msg):

@@ -9,12 +9,16 @@ from array import array
 
 import numpy as np
 
+from .. import defaults
 from ..errors import ReachsetError
+from ..robot.dynamics import JOINT_NAMES
 from ..synthesis.reference_error import u_e_ff_for_gains
-from ..systems.gains import DEFAULTS, ESO_INPUTS, Gains, certify_pair
+from ..systems.gains import DEFAULTS, ESO_INPUTS, GAIN_KEYS, TYPE_KEYS, Gains, certify_pair
 from .common import desc
 
-GAIN_DOCS = {
+#: description and range of each gain parameter (the keys and defaults: defaults ``gains.keys``,
+#: ``gains.startup``, registered by :mod:`reachset_ros.systems.gains`)
+_GAIN_TEXT = {
     "omega": ("natural frequency of the feedback law, rad/s", 0.1, 500.0),
     "zeta": ("damping ratio of the feedback law", 0.05, 10.0),
     "h1": ("high-gain observer gain h1", 1e-3, 1e4),
@@ -24,8 +28,16 @@ GAIN_DOCS = {
     "l3": ("ESO gain l3", 1e-3, 1e6),
     "eps": ("observer gain scaling epsilon, s", 1e-5, 1.0),
 }
+GAIN_DOCS = {k: _GAIN_TEXT[k] for k in GAIN_KEYS}
 #: the string parameters: the loop structure (one per node)
-TYPE_PARAMS = ("observer", "controller", "eso_input")
+TYPE_PARAMS = TYPE_KEYS
+
+
+def default_u_max():
+    """The ``u_max`` parameter's default: U_p of the LWA-4P (defaults ``lwa4p.u_max``, paper
+    Table I) in the order of the nodes' default ``joints``."""
+    u_max = defaults.get("lwa4p.u_max")
+    return [float(u_max[j]) for j in JOINT_NAMES]
 #: what the pair's certificate needs besides the gains (declared by both nodes)
 CERTIFICATE_PARAMS = ("model_file", "u_max", "u_ff_bound", "allow_uncertified")
 
@@ -71,11 +83,11 @@ def declare_certificate_parameters(node):
     """What the gate of the pair needs: the model, U_p, U_ff and the explicit opt-out."""
     node.declare_parameter("model_file", "", desc("conformance model the gains are certified against (R*_u inside "
                                                   "U_p with its sets and inflation)"))
-    node.declare_parameter("u_max", [26.0, 26.0, 26.0, 26.0, 100.0, 100.0],
+    node.declare_parameter("u_max", default_u_max(),
                            desc("U_p half-width per joint, rad/s^2"))
-    node.declare_parameter("u_ff_bound", 2.0, desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified "
-                                                   "for; references beyond it are flagged reference_out_of_class",
-                                                   0.0, 1000.0))
+    node.declare_parameter("u_ff_bound", defaults.get("gains.u_ff"),
+                           desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified for; references "
+                                "beyond it are flagged reference_out_of_class", 0.0, 1000.0))
     node.declare_parameter("allow_uncertified", False,
                            desc("run gains that no model certifies (no model_file, or a joint not in it) on closed-"
                                 "loop stability alone; without it they are refused"))

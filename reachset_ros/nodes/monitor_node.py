@@ -41,6 +41,7 @@ from ..conformance.monitor import CoverageWatch, FaultEvent, Monitor, MonitorMod
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input, plant_inputs
 from .audit import log_privileged
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, declare_realtime_priority, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
@@ -386,7 +387,8 @@ class MonitorNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
         self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.param_request = StagedRequest()
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
         path = self.get_parameter("model_file").value
         if path and not self.MANAGED:           # the managed variant loads it on configure
             ok, why = self.load(path)
@@ -460,11 +462,12 @@ class MonitorNode(Node):
         return True, ""
 
     def on_set_parameters(self, params):
-        """Validate the whole request first; apply a new model only when all of it is valid,
-        so a refused request leaves the running configuration as it was."""
+        """Validate the whole request first (on_set): a new model is built, not applied, so a
+        refused request leaves the running configuration as it was."""
         new = {p.name: p.value for p in params}
         if "model_file" in new and not new["model_file"]:
             return SetParametersResult(successful=False, reason="model_file must not be empty")
+        staged = None
         if "model_file" in new or "joints" in new:
             path = new.get("model_file", self.get_parameter("model_file").value)
             joints = [j for j in new.get("joints", self.get_parameter("joints").value) if j]
@@ -472,7 +475,18 @@ class MonitorNode(Node):
                 core, model_id, why = self.build(path, joints, new)
                 if core is None:
                     return SetParametersResult(successful=False, reason=why)
-                self.apply(core, model_id, path)
+                staged = (core, model_id, path)
+        self.param_request.hold(params, staged)
+        return SetParametersResult(successful=True)
+
+    def post_set_parameters(self, params):
+        """Apply what :meth:`on_set_parameters` accepted (post_set): the new model, or the
+        running check's coverage and stuck-sensor rules."""
+        staged = self.param_request.take(params)
+        new = {p.name: p.value for p in params}
+        if "model_file" in new or "joints" in new:
+            if staged is not None:
+                self.apply(*staged)
         elif self.core is not None:
             if "max_missing_ticks" in new:
                 self.core.coverage.set_max_missing_ticks(new["max_missing_ticks"])
@@ -481,7 +495,6 @@ class MonitorNode(Node):
             if "stuck_ticks" in new or "stuck_speed" in new:
                 self.core.set_stuck_rule(new.get("stuck_ticks", self.get_parameter("stuck_ticks").value),
                                          new.get("stuck_speed", self.get_parameter("stuck_speed").value))
-        return SetParametersResult(successful=True)
 
     # -- data ---------------------------------------------------------------------------
     def on_joint_states(self, msg):

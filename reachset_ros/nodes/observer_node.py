@@ -28,6 +28,7 @@ from .common import TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 
 class ObserverNode(Node):
@@ -50,7 +51,8 @@ class ObserverNode(Node):
         self.pub = self.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
         self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.param_request = StagedRequest()
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.reported_bad = 0
         self.create_timer(1.0, self.publish_diagnostics)
@@ -75,6 +77,12 @@ class ObserverNode(Node):
         self.diag_pub.publish(arr)
 
     def configure(self, values, model):
+        """Validate and apply a configuration (start-up); ReachsetError with the reason."""
+        self.apply(self.validate(values, model))
+
+    def validate(self, values, model):
+        """The pair's gate (as the controller's) and each observer stable; nothing applied.
+        Returns the configuration :meth:`apply` takes, or raises ReachsetError."""
         cfg = validate_pair(self, values, model)      # the pair's gate, as the controller's
         gains = cfg["gains"]
         observers = {j: g.build_observer(self.dt) for j, g in gains.items()}
@@ -82,29 +90,39 @@ class ObserverNode(Node):
             rho = max(abs(np.linalg.eigvals(o.Ao))) if o.n_states else 0.0
             if rho >= 1.0:
                 raise ReachsetError(f"observer of joint {j} is unstable (spectral radius {rho:.4g})")
+        return dict(cfg, observers=observers, model=model)
+
+    def apply(self, cfg):
+        """Run a validated configuration: the observers restart at the next measurement."""
         if cfg["uncertified"] and cfg["uncertified"] != getattr(self, "uncertified", None):
             self.get_logger().warning(f"gains of {', '.join(cfg['uncertified'])} run without a certificate "
                                       "(allow_uncertified): closed-loop stability only")
         self.uncertified = cfg["uncertified"]
-        self.model = model
-        self.observers = observers
-        self.states = {j: o.initial_state() for j, o in observers.items()}
+        self.model = cfg["model"]
+        self.observers = cfg["observers"]
+        self.states = {j: o.initial_state() for j, o in self.observers.items()}
         self.initialised = False
         self.pending = None  # (stamp, y per joint) awaiting its plant input
 
     def on_set_parameters(self, params):
+        """Validate a request (on_set); a refused one is logged (PRIVILEGED) and changes nothing."""
         model = self.model
         try:
             for p in params:
                 if p.name == "model_file":
                     model = mdl.load(p.value) if p.value else None
-            self.configure(proposed_values(self, params), model)
+            cfg = self.validate(proposed_values(self, params), model)
         except ReachsetError as e:
             result = SetParametersResult(successful=False, reason=str(e))
-        else:
-            result = SetParametersResult(successful=True)
-        log_gain_change(self, params, result)
-        return result
+            log_gain_change(self, params, result)
+            return result
+        self.param_request.hold(params, cfg)
+        return SetParametersResult(successful=True)
+
+    def post_set_parameters(self, params):
+        """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
+        self.apply(self.param_request.take(params))
+        log_gain_change(self, params, SetParametersResult(successful=True))
 
     def on_joint_states(self, msg):
         stamp = stamp_ns(msg.header.stamp)

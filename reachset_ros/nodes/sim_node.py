@@ -55,6 +55,7 @@ from ..errors import ReachsetError
 from ..sim.reference import ReferenceConfig
 from .common import (CLOCK_QOS, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns,
                      to_stamp)
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 #: how far (s) the simulation may fall behind its wall-clock schedule and still catch up
 CATCH_UP = 1.0
@@ -148,7 +149,8 @@ class SimNode(Node):
         self.reported = dict(self.arm.counters)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.param_request = StagedRequest()
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
         self.dt = dt
         self.next_wall = time.monotonic() + dt
         self.published_wall = time.monotonic()
@@ -200,30 +202,53 @@ class SimNode(Node):
                                       + (f" ({msg.reason})" if msg.reason and on else ""))
             self.arm.set_brakes(want)
 
+    def fault_request(self, params):
+        """``(kind, joint, magnitude)`` of a request's ``fault`` (None without one): the joint and
+        magnitude given with it, else the current parameters."""
+        kind = next((p.value for p in params if p.name == "fault"), None)
+        if kind is None:
+            return None
+        joint = self.get_parameter("fault_joint").value
+        mag = float(self.get_parameter("fault_magnitude").value)
+        for q in params:
+            if q.name == "fault_joint":
+                joint = q.value
+            if q.name == "fault_magnitude":
+                mag = float(q.value)
+        return kind, joint, mag
+
     def on_set_parameters(self, params):
-        for p in params:
-            if p.name == "fault" and p.value == "none":
-                n = self.arm.clear_faults()
-                next_stamp = self.arm.stamp(self.arm.state.k + 1)
-                self.get_logger().warning(f"faults cleared ({n} removed) from stamp {next_stamp} ns")
-            elif p.name == "fault":
-                joint = self.get_parameter("fault_joint").value
-                mag = float(self.get_parameter("fault_magnitude").value)
-                for q in params:
-                    if q.name == "fault_joint":
-                        joint = q.value
-                    if q.name == "fault_magnitude":
-                        mag = float(q.value)
-                try:
-                    start_s = (self.arm.state.k + 1) * self.arm.config.dt
-                    onset = self.arm.inject(make_fault(p.value, joint, mag, start_s))
-                except ReachsetError as e:
-                    return SetParametersResult(successful=False, reason=str(e))
-                h = Header(frame_id=f"{p.value} on {joint}, magnitude {mag:g}")
-                to_stamp(h.stamp, onset)
-                self.onset_pub.publish(h)
-                self.get_logger().warning(f"fault injected: {h.frame_id}, first affected stamp {onset} ns")
+        """Validate a fault to inject (on_set): a known kind, on a joint of the simulated arm."""
+        request = self.fault_request(params)
+        if request is not None and request[0] != "none":
+            kind, joint, mag = request
+            try:
+                fault = make_fault(kind, joint, mag, 0.0)
+                if getattr(fault, "joint", None) is not None:
+                    self.arm._joint(fault.joint)      # the simulator's own check of the joint (inject's)
+            except ReachsetError as e:
+                return SetParametersResult(successful=False, reason=str(e))
+        self.param_request.hold(params)
         return SetParametersResult(successful=True)
+
+    def post_set_parameters(self, params):
+        """Clear the faults, or inject the validated one from the next step (post_set)."""
+        self.param_request.take(params)
+        request = self.fault_request(params)
+        if request is None:
+            return
+        kind, joint, mag = request
+        if kind == "none":
+            n = self.arm.clear_faults()
+            next_stamp = self.arm.stamp(self.arm.state.k + 1)
+            self.get_logger().warning(f"faults cleared ({n} removed) from stamp {next_stamp} ns")
+            return
+        start_s = (self.arm.state.k + 1) * self.arm.config.dt
+        onset = self.arm.inject(make_fault(kind, joint, mag, start_s))
+        h = Header(frame_id=f"{kind} on {joint}, magnitude {mag:g}")
+        to_stamp(h.stamp, onset)
+        self.onset_pub.publish(h)
+        self.get_logger().warning(f"fault injected: {h.frame_id}, first affected stamp {onset} ns")
 
     def tick(self):
         """Step when the period is due and the command of the last measurement has arrived

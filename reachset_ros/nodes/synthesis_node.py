@@ -40,24 +40,23 @@ from rclpy.parameter import Parameter
 from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
-from .. import launch
+from .. import defaults, launch
 from ..atomic import write_yaml
 from ..conformance import model as mdl
 from ..errors import ReachsetError
-from ..systems.gains import Gains, certify
+from ..systems.gains import GAIN_KEYS, TYPE_KEYS, Gains, certify
 from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_parameters, spin_node
 
-GAIN_KEYS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
 #: per-joint parameters each target takes from a synthesis, besides the ``observer`` and
 #: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
 #: both nodes get the whole pair (observer and controller gains), U_p and the model: each
 #: certifies the pair it will be part of (gain_params.validate_pair, systems.gains.certify_pair)
 TARGET_KEYS = {"controller_node": GAIN_KEYS + ("u_max",),
                "observer_node": GAIN_KEYS + ("u_max",)}
-#: the loop structure, one string per node (``eso_input``: which plant input the ESO is fed;
-#: a model file without it means "previous", as :meth:`Gains.from_model` reads it)
-TYPE_KEYS = ("observer", "controller", "eso_input")
-TYPE_DEFAULTS = {"eso_input": "previous"}
+#: the loop structure, one string per node (GAIN_KEYS and TYPE_KEYS: defaults ``gains.keys``,
+#: ``gains.types``); ``eso_input``: which plant input the ESO is fed, a model file without it
+#: means ``gains.eso.eso_input`` ("previous"), as :meth:`Gains.from_model` reads it
+TYPE_DEFAULTS = {"eso_input": defaults.get("gains.eso.eso_input")}
 
 
 def certify_synthesis(data, model_file):

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import bags
+from .. import defaults
 from .. import robot as rb
 from ..bags import JointSeries
 from ..bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
@@ -25,6 +26,7 @@ from ..errors import ReachsetError
 from ..synthesis.config import components_from_gains
 from ..synthesis.reference_error import reference_state, simulate_closed_loop
 from ..systems.closedloop import closed_loop_tick
+from ..systems.gains import family_controller
 from ..systems.plant import lwa4p_joint_plant
 from . import reference as refm
 from . import simulator as simm
@@ -91,8 +93,16 @@ def _reference(T, dt, rng, sc):
     return s * q, s * qd, s * qdd
 
 
-DEFAULT_GAINS = {"observer": "hg", "controller": "static", "omega": 20.0, "zeta": 1.0, "h1": 15.0,
-                 "h2": 30.0, "eps": 0.01}
+defaults.register("sim", {
+    "recording_gains": ({"observer": "hg", "controller": family_controller("hg"),
+                         **defaults.get("gains.feedback.paper"),
+                         **{n: defaults.get(f"gains.hg.{n}") for n in ("h1", "h2", "eps")}},
+                        "the gains the simulator's recordings are made with when none are given (model-file "
+                        "gains): the HG observer of Sec. IV-A with the paper's fixed feedback law (Sec. IV-C, "
+                        "omega 20, zeta 1); not the nodes' start-up gains (gains.startup)"),
+}, owner=__name__)
+#: the simulator's recording gains (defaults ``sim.recording_gains``)
+DEFAULT_GAINS = defaults.get("sim.recording_gains")
 
 
 def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant=None, t0=1_700_000_000_000_000_000):

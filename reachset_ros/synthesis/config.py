@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import defaults
 from ..errors import ReachsetError
-from ..systems.gains import ESO_INPUTS, FAMILY_PARAMS, Gains
+from ..systems.gains import ESO_INPUTS, FAMILY_PARAMS, Gains, family_controller
 
 #: Parameters of each observer family (the controller adds omega, zeta).
 PARAMS = FAMILY_PARAMS
@@ -32,21 +33,36 @@ PENALTY = 1e6
 #: (:func:`reachset_ros.conformance.make_sound`) cannot push R_u outside U_p.
 U_MARGIN = 1e-4  # relative slack of R_u inside U_p: absorbs the final outer-bound and soundness inflation
 
+defaults.register("synthesis", {
+    "u_max_unlisted": (26.0, "U_p half-width, rad/s^2, of a joint the synthesis configuration does not list "
+                             "(its u_max.default; the LWA-4P's axes 1-4 value of paper Table I)"),
+}, owner=__name__)
+
+
+def _start_values(observer):
+    """Start values of a family's search (fixed values of the non-free parameters): the paper's
+    fixed feedback law (Sec. IV-C, defaults ``gains.feedback.paper``) with the family's observer
+    gains (defaults ``gains.hg`` / ``gains.eso``)."""
+    return {**defaults.get("gains.feedback.paper"),
+            **{n: defaults.get(f"gains.{observer}.{n}") for n in FAMILY_PARAMS[observer] + ("eps",)
+               if n not in ("omega", "zeta")}}
+
+
+#: The built-in configuration (config/synthesis.yaml is the same, test/test_defaults.py checks it).
 DEFAULT_CONFIG = {
     "format": "reachset_ros/synthesis-config/1",
     "search": {"sobol_log2": 6, "local_starts": 3, "local_maxfev": 120, "seed": 0,
                "max_spectral_radius": 0.999},
-    "u_ff": 2.0,
-    "u_max": {"default": 26.0, "arm_1_joint": 26.0, "arm_2_joint": 26.0, "arm_3_joint": 26.0,
-              "arm_4_joint": 26.0, "arm_5_joint": 100.0, "arm_6_joint": 100.0},
+    "u_ff": defaults.get("gains.u_ff"),
+    "u_max": {"default": defaults.get("synthesis.u_max_unlisted"), **defaults.get("lwa4p.u_max")},
     "structures": {
-        "hg": {"controller": "static", "free": ["omega", "zeta"],
-               "values": {"omega": 20.0, "zeta": 1.0, "h1": 15.0, "h2": 30.0, "eps": 0.01},
+        "hg": {"controller": family_controller("hg"), "free": ["omega", "zeta"],
+               "values": _start_values("hg"),
                "bounds": {"omega": [1.0, 100.0], "zeta": [0.3, 3.0], "h1": [1.0, 1000.0],
                           "h2": [1.0, 5000.0]},
                "log": ["omega", "h1", "h2"]},
-        "eso": {"controller": "compensated", "free": ["l1", "l2", "l3"],
-                "values": {"omega": 20.0, "zeta": 1.0, "l1": 57.1, "l2": 103.3, "l3": 18.1, "eps": 0.01},
+        "eso": {"controller": family_controller("eso"), "free": ["l1", "l2", "l3"],
+                "values": _start_values("eso"),
                 "bounds": {"omega": [1.0, 100.0], "zeta": [0.3, 3.0], "l1": [1.0, 1000.0],
                            "l2": [1.0, 5000.0], "l3": [0.1, 5000.0]},
                 "log": ["omega", "l1", "l2", "l3"]},
@@ -104,7 +120,7 @@ def u_max_for(cfg, joint):
     um = cfg.get("u_max", {})
     if isinstance(um, (int, float)):
         return float(um)
-    return float(um.get(joint, um.get("default", 26.0)))
+    return float(um.get(joint, um.get("default", defaults.get("synthesis.u_max_unlisted"))))
 
 
 # ====================================================================== search space

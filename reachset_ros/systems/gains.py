@@ -19,6 +19,7 @@ import numpy as np
 
 from . import closedloop
 from .controllers import compensated_feedback, static_feedback
+from .. import defaults
 from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
@@ -26,16 +27,90 @@ from .plant import lwa4p_joint_plant
 __all__ = ["Gains", "check_gains", "certify", "Certificate", "max_certified_inflation", "recorded_u_e_ff", "NO_U_E_FF",
            "recorded_for_other_gains", "is_model_gains",
            "certified_inflation", "model_limits",
-           "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS"]
+           "DEFAULTS", "FAMILY_PARAMS", "ESO_INPUTS", "GAIN_KEYS", "TYPE_KEYS", "family_controller"]
 
-DEFAULTS = dict(observer="hg", controller="static", omega=10.0, zeta=1.0, h1=15.0, h2=30.0,
-                l1=57.1, l2=103.3, l3=18.1, eps=0.01, eso_input="previous")
+# ---------------------------------------------------------------- the defaults of the gains
+# (reachset_ros.defaults: each default once, with what it means; test/test_defaults.py checks
+# the copies users edit: config/*.yaml, docs/nodes.md)
+defaults.register("gains", {
+    "keys": (("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps"),
+             "the numeric gain parameters, in this order: the feedback law's omega (rad/s) and zeta, the HG "
+             "observer's h1, h2, the ESO's l1, l2, l3, and the observer scaling eps (s); the nodes' per-joint "
+             "gain parameters and the synthesis node's gain keys"),
+    "types": (("observer", "controller", "eso_input"),
+              "the loop structure, one word each (one parameter per node): observer family, feedback law and "
+              "the plant input the ESO is fed"),
+}, owner=__name__)
+defaults.register("gains.hg", {
+    "controller": ("static", "the feedback law the high-gain observer is combined with: static feedback (paper "
+                             "eq. staticfeedback; the HG observer estimates no disturbance)"),
+    "h1": (15.0, "high-gain observer gain h1 (paper Sec. IV-A)"),
+    "h2": (30.0, "high-gain observer gain h2 (paper Sec. IV-A)"),
+    "eps": (0.01, "high-gain observer scaling epsilon, s (paper Sec. IV-A)"),
+}, owner=__name__)
+defaults.register("gains.eso", {
+    "controller": ("compensated", "the feedback law the extended-state observer is combined with: disturbance-"
+                                  "compensated feedback (paper eq. feedbackLaw, Sec. IV-C); the one default of "
+                                  "Gains, Gains.from_dict, Gains.from_model, the synthesis and reachset analyze"),
+    "l1": (57.1, "ESO gain l1 (paper Sec. IV-C, Table III axis 1)"),
+    "l2": (103.3, "ESO gain l2 (paper Sec. IV-C, Table III axis 1)"),
+    "l3": (18.1, "ESO gain l3 (paper Sec. IV-C, Table III axis 1)"),
+    "eps": (0.01, "ESO scaling epsilon, s (paper Sec. IV-C)"),
+    "eso_input": ("previous", "the plant input the ESO is fed at tick k: u_p[k-1] (reproduces the paper; "
+                              "'current' feeds u_p[k], an algebraic loop); model files without it mean this"),
+}, owner=__name__)
+defaults.register("gains.feedback", {
+    "paper": ({"omega": 20.0, "zeta": 1.0},
+              "the feedback law the paper keeps fixed while it searches the observer gains (Sec. IV-C): the "
+              "synthesis' start values and the simulator's recording gains"),
+    "table_ii": ({"omega": 24.40, "zeta": 0.96},
+                 "the static feedback law the paper synthesised for the HG observer (Sec. IV-A, Table II axis 1)"),
+    "startup": ({"omega": 10.0, "zeta": 1.0},
+                "the nodes' start-up feedback law: slower than the paper's, the loop that records the "
+                "identification data before any synthesis (run uncertified, allow_uncertified)"),
+}, owner=__name__)
+_STARTUP = {"observer": "hg", **defaults.get("gains.feedback.startup"), **defaults.table("gains.hg"),
+            **{k: defaults.get(f"gains.eso.{k}") for k in ("l1", "l2", "l3", "eso_input")}}
+defaults.register("gains", {
+    "startup": ({k: _STARTUP[k] for k in ("observer", "controller", *defaults.get("gains.keys"), "eso_input")},
+                "the nodes' start-up gains (observer and controller nodes, config/lwa4p.yaml), every key of "
+                "Gains: the HG observer of Sec. IV-A with static feedback at the start-up feedback law; the ESO "
+                "gains are Table III's, used when only the observer is switched to eso"),
+}, owner=__name__)
+
+defaults.register("gains", {
+    "u_ff": (2.0, "U_ff = [-u_ff, u_ff], the bound of the feedforward qdd_d, rad/s^2, that R*_u is certified for "
+                  "(paper Sec. IV: U_ref = [-2, 2]): the synthesis configuration's u_ff, the nodes' u_ff_bound, "
+                  "reachset analyze --u-ff, check_gains and a model's gains that record no u_ff"),
+}, owner=__name__)
+defaults.register("lwa4p", {
+    "u_max": ({"arm_1_joint": 26.0, "arm_2_joint": 26.0, "arm_3_joint": 26.0, "arm_4_joint": 26.0,
+               "arm_5_joint": 100.0, "arm_6_joint": 100.0},
+              "U_p = [-u_max, u_max] of each joint of the Schunk LWA-4P, rad/s^2 (paper Table I: 26 for axes 1-4, "
+              "100 for axes 5-6), which certify() keeps R*_u inside: the nodes' u_max parameter (in the order of "
+              "their joints), the synthesis configuration's u_max, config/lwa4p.yaml"),
+}, owner=__name__)
+
+#: the nodes' start-up gains (defaults ``gains.startup``): every key of :class:`Gains`
+DEFAULTS = defaults.get("gains.startup")
+#: the numeric gain parameters (defaults ``gains.keys``)
+GAIN_KEYS = defaults.get("gains.keys")
+#: the loop structure's words (defaults ``gains.types``)
+TYPE_KEYS = defaults.get("gains.types")
 #: the numeric parameters of each observer family's loop (the controller adds omega, zeta)
 FAMILY_PARAMS = {"hg": ("omega", "zeta", "h1", "h2"), "eso": ("omega", "zeta", "l1", "l2", "l3")}
 #: which plant input the ESO is fed at tick k (:func:`~reachset_ros.systems.observers.extended_state_observer`)
 ESO_INPUTS = ("previous", "current")
-_NUMBERS = ("omega", "zeta", "h1", "h2", "l1", "l2", "l3", "eps")
-_WORDS = ("observer", "controller", "eso_input")
+_NUMBERS = GAIN_KEYS
+_WORDS = TYPE_KEYS
+
+
+def family_controller(observer):
+    """The feedback law an observer family is combined with when none is named (defaults
+    ``gains.hg.controller``, ``gains.eso.controller``: static for hg, compensated for eso)."""
+    if observer not in FAMILY_PARAMS:
+        raise ReachsetError(f"observer must be hg or eso, not {observer!r}")
+    return defaults.get(f"gains.{observer}.controller")
 
 
 @dataclass(frozen=True)
@@ -45,23 +120,28 @@ class Gains:
     ``eso_input`` is part of the loop: ``"previous"`` feeds the ESO u_p[k-1], ``"current"``
     u_p[k] (an algebraic loop, solved by :class:`~reachset_ros.systems.closedloop.FeedbackLaw`);
     the two give different closed loops and different R_e. It is ignored by the HG observer.
+    Defaults: the nodes' start-up gains (:data:`DEFAULTS`, defaults ``gains.startup``), and
+    the observer family's feedback law when ``controller`` is not given (static for hg,
+    compensated for eso: :func:`family_controller`).
     """
 
-    observer: str = "hg"
-    controller: str = "static"
-    omega: float = 10.0
-    zeta: float = 1.0
-    h1: float = 15.0
-    h2: float = 30.0
-    l1: float = 57.1
-    l2: float = 103.3
-    l3: float = 18.1
-    eps: float = 0.01
-    eso_input: str = "previous"
+    observer: str = DEFAULTS["observer"]
+    controller: str = None      # None: the observer family's (:func:`family_controller`)
+    omega: float = DEFAULTS["omega"]
+    zeta: float = DEFAULTS["zeta"]
+    h1: float = DEFAULTS["h1"]
+    h2: float = DEFAULTS["h2"]
+    l1: float = DEFAULTS["l1"]
+    l2: float = DEFAULTS["l2"]
+    l3: float = DEFAULTS["l3"]
+    eps: float = DEFAULTS["eps"]
+    eso_input: str = DEFAULTS["eso_input"]
 
     def __post_init__(self):
         if self.observer not in ("hg", "eso"):
             raise ReachsetError(f"observer must be hg or eso, not {self.observer!r}")
+        if self.controller is None:
+            object.__setattr__(self, "controller", family_controller(self.observer))
         if self.controller not in ("static", "compensated"):
             raise ReachsetError(f"controller must be static or compensated, not {self.controller!r}")
         if self.controller == "compensated" and self.observer != "eso":
@@ -75,7 +155,9 @@ class Gains:
 
     @classmethod
     def from_dict(cls, d):
-        """Gains from a mapping; missing keys take :data:`DEFAULTS`, unknown keys are ignored."""
+        """Gains from a mapping; missing keys take :data:`DEFAULTS` (a missing ``controller``
+        the observer family's, :func:`family_controller`, as :meth:`from_model`), unknown keys
+        are ignored."""
         known = {k: d[k] for k in DEFAULTS if k in d}
         for k, v in known.items():
             if k in _WORDS:
@@ -109,8 +191,8 @@ class Gains:
             kw = {n: float(v) for n, v in kw.items()}
         except (TypeError, ValueError):
             raise ReachsetError("gains: parameter values must be numbers") from None
-        return cls(observer=obs, controller=str(d.get("controller", "static" if obs == "hg" else "compensated")),
-                   eso_input=str(d.get("eso_input", "previous")), **kw)
+        return cls(observer=obs, controller=str(d.get("controller", family_controller(obs))),
+                   eso_input=str(d.get("eso_input", defaults.get("gains.eso.eso_input"))), **kw)
 
     def model_dict(self):
         """The model file's ``gains`` entry: observer, controller, the family's parameters,
@@ -288,8 +370,8 @@ def max_certified_inflation(gains: Gains, joint_sets, u_max: float, u_ff: float,
     return i
 
 
-def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = 2.0, plant=None, inflation: float = 0.0,
-                u_e_ff=None):
+def check_gains(gains: Gains, joint_sets, u_max: float, u_ff: float = defaults.get("gains.u_ff"), plant=None,
+                inflation: float = 0.0, u_e_ff=None):
     """Would these gains be safe under the sets the monitor checks?
 
     Returns ``(ok, reason, analysis)`` of :func:`certify`: ``ok`` is False when the closed
@@ -305,7 +387,7 @@ def model_limits(joint_sets):
     g = joint_sets.gains or {}
     if "u_max" not in g:
         raise ReachsetError("model: the joint's gains do not record u_max (not written by the synthesis)")
-    return float(g["u_max"]), float(g.get("u_ff", 2.0))
+    return float(g["u_max"]), float(g.get("u_ff", defaults.get("gains.u_ff")))
 
 
 def certified_inflation(model, requested: float):

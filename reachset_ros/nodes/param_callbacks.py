@@ -1,0 +1,37 @@
+"""Validate a parameter request in ``on_set``, apply it in ``post_set``.
+
+The split of ros2/demos ``demo_nodes_py/parameters/set_parameters_callback.py``: rclpy calls a
+node's ``on_set`` callbacks before it stores a request's values (they may refuse it, with a
+reason, and must leave the node as it was) and its ``post_set`` callbacks after it stored
+them (they cannot refuse). A node validates the request in ``on_set`` and, when it accepts,
+holds what it validated (a certified gain pair, a loaded model) in a :class:`StagedRequest`;
+its ``post_set`` takes it back and applies it, once. rclpy passes both callbacks the same
+list of parameters, which is how the request is recognised.
+"""
+from ..errors import ReachsetError
+
+
+class StagedRequest:
+    """The parameter request a node's ``on_set`` callback accepted, until its ``post_set``."""
+
+    def __init__(self):
+        self._request = None
+
+    def hold(self, params, staged=None):
+        """Keep what ``on_set`` validated for the request ``params`` (replaces any older one)."""
+        self._request = (params, staged)
+
+    def take(self, params):
+        """What ``on_set`` validated for ``params`` (the same list rclpy gave it); forgotten
+        afterwards, so it is applied once. ReachsetError when ``on_set`` accepted no such
+        request (rclpy calls ``post_set`` only after every ``on_set`` accepted it)."""
+        request, self._request = self._request, None
+        if request is None or request[0] is not params:
+            raise ReachsetError("post_set parameters callback without a request accepted by on_set")
+        return request[1]
+
+
+def add_parameter_callbacks(node, *, on_set, post_set):
+    """Register ``on_set`` (validate) and ``post_set`` (apply) on ``node``."""
+    node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)
