@@ -18,6 +18,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+from .. import defaults
 from ..conformance import model as mdl
 from ..nodes.common import stamp_ns
 from ..robot.dynamics import U_REF
@@ -30,8 +31,16 @@ __all__ = ["CORE_TOPICS", "INITIAL_GAINS", "JOINTS", "LOCKSTEP_TIMEOUT", "MONITO
            "run_demo", "wall_limit"]
 
 #: the gains the demo starts with (observer and controller parameters, one value for all joints)
-INITIAL_GAINS = {"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
-                 "h1": [15.0], "h2": [30.0], "eps": [0.01]}
+defaults.register("demo", {
+    "initial_gains": ({"observer": "hg", "controller": "static", "omega": [15.0], "zeta": [1.0],
+                       "h1": [15.0], "h2": [30.0], "eps": [0.01]},
+                      "the gains the demo and the fault campaign start the observer and controller nodes "
+                      "with, to record their training data: the HG observer of Sec. IV-A (defaults "
+                      "gains.hg) with a static law between the nodes' start-up law (omega 10) and the "
+                      "paper's (omega 20), one value for all joints"),
+}, owner=__name__)
+#: the observer and controller nodes' parameters of the training runs (defaults ``demo.initial_gains``)
+INITIAL_GAINS = defaults.get("demo.initial_gains")
 
 
 def run_demo(*, workdir: Path, record: Path, duration: float, fault_at: float | None, train: float,
