@@ -191,10 +191,11 @@ def check_args(args):
         raise ReachsetError("--model is only used with --mode reidentify")
 
 
-def compute(args):
+def compute(args, command=None):
     """Run the synthesis of the command line (:func:`~reachset_ros.workflows.synthesize.synthesize`):
     its :class:`~reachset_ros.workflows.synthesize.SynthesisResult`, and the ``--json`` object
-    (with ``seconds``)."""
+    (with ``seconds``). ``command``: the command line for the model's provenance (default:
+    this process's)."""
     t0 = time.perf_counter()
     check_args(args)
     out = check_out_path(args.out)
@@ -205,8 +206,8 @@ def compute(args):
         opts, read = options_of(args, joints, free, reader=reader_options(args)), None
     else:                      # the sweep per bag on Dask, merged exactly (the same result, to the bit)
         opts, read = options_of(args, joints, free), read_spec(args, None, args.dt)
-    res = synthesize(args.bags, opts, out=out, plot=args.plot, command="reachset " + " ".join(sys.argv[1:]),
-                     fleet=fleet, fleet_read=read)
+    command = command or "reachset " + " ".join(sys.argv[1:])
+    res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read)
     result = res.to_json()
     result["seconds"] = round(time.perf_counter() - t0, 3)
     return res, result
