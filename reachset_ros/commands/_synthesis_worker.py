@@ -1,6 +1,10 @@
-"""The synthesis node's worker process: ``python -m reachset_ros.commands._synthesis_worker ARG...``.
+"""The synthesis node's worker process.
 
-Parses ``reachset synthesize`` arguments (the node's own and its ``extra_args`` parameter),
+``python -m reachset_ros.commands._synthesis_worker synthesize ARG...``:
+
+The first argument names the workflow (``synthesize``, the one it runs; so the process is
+found as the synthesis by its command line, as ``reachset synthesize`` was). Parses
+``reachset synthesize`` arguments (the node's own and its ``extra_args`` parameter),
 runs the synthesis workflow in this process (:func:`reachset_ros.commands.synthesize.compute`,
 the command's own code path, which calls :func:`reachset_ros.workflows.synthesize.synthesize`)
 and writes the result, the command's ``--json`` object, to stdout as one pickle: the node
@@ -21,6 +25,8 @@ from ..errors import ReachsetError
 from . import synthesize
 
 PROG = "reachset synthesize"
+#: the workflows this worker runs (its first argument)
+WORKFLOWS = ("synthesize",)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -41,6 +47,11 @@ def parser():
 def main(argv=None):
     """Run one synthesis; returns the exit status (0, or 2 on a refused input)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] not in WORKFLOWS:
+        print(f"{PROG}: error: the worker's first argument names the workflow ({', '.join(WORKFLOWS)})",
+              file=sys.stderr)
+        return 2
+    argv = argv[1:]
     args = parser().parse_args(argv)
     out = sys.stdout.buffer
     try:

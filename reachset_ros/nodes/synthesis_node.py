@@ -235,7 +235,7 @@ class SynthesisNode(Node):
         self.count += 1
         out = workdir / f"model_{int(time.time())}_{self.count}_{mode}.yaml"
         # "--json": the command line recorded in the model is the one `reachset synthesize` records
-        cmd = [sys.executable, "-m", WORKER, *req.bags, "--mode", mode, "--out", str(out), "--json"]
+        cmd = [sys.executable, "-m", WORKER, "synthesize", *req.bags, "--mode", mode, "--out", str(out), "--json"]
         if req.joints:
             cmd += ["--joints", ",".join(req.joints)]
         current = self.get_parameter("model_file").value
