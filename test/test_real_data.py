@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import yaml
 
-from reachset_ros.commands.identify import DEFAULT_GRID
+from reachset_ros.workflows.identify import DEFAULT_GRID
 from reachset_ros.robot import lwa4p
 
 
@@ -59,7 +59,7 @@ def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_ne
     with the reported per-joint inflation are conformant, and every joint with a positive
     inflation has a fold violated at the next smaller grid value."""
     from reachset_ros import bags
-    from reachset_ros.commands.identify import _joint_sets, identify_series
+    from reachset_ros.workflows.identify import identify_series, model_joint_sets
     from reachset_ros.conformance.estimators import Estimator
     from reachset_ros.conformance.theorem1 import Theorem1, check
     from reachset_ros.systems.plant import lwa4p_joint_plant
@@ -84,7 +84,7 @@ def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_ne
         held, _ = bags.read_joint_series([tmp_path / f"f{f}"])
         res, _ = identify_series(plant, est, train, H, settle=False)
         for n, v in infl.items():
-            js = _joint_sets(res[n][0], res[n][1], H)
+            js = model_joint_sets(res[n][0], res[n][1], H)
             s = held[n]
             assert check(plant, thm, est, js.xi(v), s.y, s.u, s.segments, H).violations == 0, (f, n, v)
             below = [g for g in grid if g < v]
@@ -106,7 +106,7 @@ def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_ne
 
 
 def test_calibrate_margin_steps_along_the_grid():
-    from reachset_ros.commands.identify import calibrate_margin
+    from reachset_ros.workflows.identify import calibrate_margin
     grid = [0.0, 0.1, 0.2, 0.5, 1.0]
     assert calibrate_margin(0.2, grid, 1) == 0.5 and calibrate_margin(0.2, grid, 2) == 1.0
     assert calibrate_margin(0.0, grid, 1) == 0.1
@@ -118,14 +118,15 @@ def test_a_single_recording_is_split_into_blocks_for_the_folds(lwa4p_dir):
     segments are cut at the block boundaries (a test case is dropped there, never split)."""
     from reachset_ros.bags.series import JointSeries
     from reachset_ros.conformance.calibration import segment_folds
+    from reachset_ros.workflows.identify import run_ranges
     st = 10**18 + 4_000_000 * np.arange(1000)
     s = JointSeries("j", st, np.zeros(1000), np.zeros(1000), ((0, 1000),), 0.004)
-    segs, folds, n_blocks, n_runs = segment_folds(s, 4, 0.004)
+    segs, folds, n_blocks, n_runs = segment_folds(s, 4, run_ranges(s.stamps, 0.004))
     assert (n_runs, n_blocks) == (1, 4)
     assert segs == [(0, 250), (250, 500), (500, 750), (750, 1000)] and folds == [0, 1, 2, 3]
     st2 = np.concatenate([st[:600], st[600:] + 10**9])           # two recordings, a pause
     s2 = JointSeries("j", st2, np.zeros(1000), np.zeros(1000), ((0, 600), (600, 1000)), 0.004)
-    segs, folds, n_blocks, n_runs = segment_folds(s2, 2, 0.004)
+    segs, folds, n_blocks, n_runs = segment_folds(s2, 2, run_ranges(s2.stamps, 0.004))
     assert (n_runs, n_blocks) == (2, 2) and segs == [(0, 600), (600, 1000)] and folds == [0, 1]
 
 

@@ -96,8 +96,9 @@ def run(args):
         w = _vec("weights", w, n)
     else:
         w = w[0]
-    res = il.input_limits(model, tau, qmax, qdmax, args.splits if len(args.splits) > 1 else args.splits[0],
-                          args.method, args.refine, args.max_boxes, w, args.samples, args.seed)
+    res = il.input_limits(model, tau, qmax, qdmax, splits=args.splits if len(args.splits) > 1 else args.splits[0],
+                          method=args.method, refine=args.refine, max_boxes=args.max_boxes, weights=w,
+                          samples=args.samples, seed=args.seed)
     d = res.as_dict()
     if args.out:
         _write(args.out, {"u_max": {j: float(round(x, 6)) for j, x in zip(model.joint_names, res.a)}})

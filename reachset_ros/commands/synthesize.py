@@ -27,13 +27,11 @@ import math
 import sys
 import time
 
-from ..bags.references import read_estimates
-from ..conformance import model as mdl
 from ..conformance.estimators import ESTIMATORS
 from ..errors import ReachsetError
 from ..synthesis.config import PARAMS
-from ..synthesis.pipeline import synthesize_bags
 from ..synthesis.reference_error import ReferenceClass, ReferenceMethod
+from ..workflows.synthesize import SynthesisOptions, synthesize
 from . import emit
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
                        reader_options, topics_of)
@@ -163,22 +161,20 @@ def _bounds(items):
     return bounds
 
 
-def _synthesize(args, joints, free, **kw):
-    """:func:`synthesize_bags` with the command line's options; ``kw``: ``reader``, or ``fleet``
-    and ``fleet_read`` (``--workers``/``--scheduler``)."""
-    return synthesize_bags(args.bags, joints, args.mode, args.observer, args.controller, free, _fix(args.fix),
-                           _bounds(args.bound), args.u_max, args.u_ff, args.horizon, args.estimator,
-                           args.alpha_lower, ReferenceMethod(args.reference_method), args.eso_input, args.seed,
-                           tuple(args.lqg_r or ()), args.config, args.model, args.dt,
-                           allow_weak_horizon=args.allow_weak_horizon,
-                           reference_class=(None if args.reference_class is None
-                                            else ReferenceClass.parse(args.reference_class)),
-                           inflation=args.inflation, topics=topics_of(args),
-                           initial_state_set=args.initial_state_set, **kw)
+def options_of(args, joints, free, reader=None):
+    """The :class:`~reachset_ros.workflows.synthesize.SynthesisOptions` of the command line."""
+    return SynthesisOptions(
+        joints=joints, mode=args.mode, observer=args.observer, controller=args.controller, free=free,
+        fix=_fix(args.fix), bounds=_bounds(args.bound), u_max=args.u_max, u_ff=args.u_ff, horizon=args.horizon,
+        estimator=args.estimator, alpha_lower=args.alpha_lower, reference_method=ReferenceMethod(args.reference_method),
+        eso_input=args.eso_input, seed=args.seed, lqg_r=tuple(args.lqg_r or ()), config=args.config, model=args.model,
+        dt=args.dt, allow_weak_horizon=args.allow_weak_horizon,
+        reference_class=None if args.reference_class is None else ReferenceClass.parse(args.reference_class),
+        inflation=args.inflation, topics=topics_of(args), reader=reader, initial_state_set=args.initial_state_set)
 
 
-def run(args):
-    t0 = time.perf_counter()
+def check_args(args):
+    """Refuse out-of-range numbers and options that exclude each other, naming the option."""
     if args.dt <= 0 or not math.isfinite(args.dt):
         raise ReachsetError("--dt must be positive")
     _finite("u-ff", args.u_ff)
@@ -193,29 +189,33 @@ def run(args):
         raise ReachsetError("--mode reidentify needs --model (the model whose gains are kept)")
     if args.mode != "reidentify" and args.model:
         raise ReachsetError("--model is only used with --mode reidentify")
+
+
+def compute(args, command=None):
+    """Run the synthesis of the command line (:func:`~reachset_ros.workflows.synthesize.synthesize`):
+    its :class:`~reachset_ros.workflows.synthesize.SynthesisResult`, and the ``--json`` object
+    (with ``seconds``). ``command``: the command line for the model's provenance (default:
+    this process's)."""
+    t0 = time.perf_counter()
+    check_args(args)
     out = check_out_path(args.out)
     free = None if args.free is None else [x.strip() for x in args.free.split(",") if x.strip()]
     joints = None if args.joints in (None, "all") else parse_joints(args.joints)
     fleet = fleet_of(args, refused=((args.plot is not None, "--plot"),))
     if fleet is None:
-        bs = _synthesize(args, joints, free, reader=reader_options(args))
+        opts, read = options_of(args, joints, free, reader=reader_options(args)), None
     else:                      # the sweep per bag on Dask, merged exactly (the same result, to the bit)
-        with fleet:
-            bs = _synthesize(args, joints, free, fleet=fleet, fleet_read=read_spec(args, None, args.dt))
-    # everything computed: now write (nothing half-written on errors above)
-    result = bs.as_dict()
-    plots = []
-    if args.plot:
-        from .. import plots as pl  # heavy optional dependency: matplotlib, only for --plot
-        names = list(bs.results)
-        est_rows = read_estimates(args.bags, names)
-        for pb in bs.problems:
-            plots += [str(p) for p in pl.plot_joint(args.plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
-        result["plots"] = plots
-    if out is not None:
-        mdl.save(bs.model("reachset " + " ".join(sys.argv[1:])), out)
-        result["model"] = str(out)
+        opts, read = options_of(args, joints, free), read_spec(args, None, args.dt)
+    command = command or "reachset " + " ".join(sys.argv[1:])
+    res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read)
+    result = res.to_json()
     result["seconds"] = round(time.perf_counter() - t0, 3)
+    return res, result
+
+
+def run(args):
+    res, result = compute(args)
+    bs = res.synthesis
     weak = (f"\nWEAK GUARANTEE: horizon {bs.horizon} is below the plant's minimum {bs.minimum_horizon} "
             "(--allow-weak-horizon)") if bs.horizon_below_minimum else ""
-    emit(args, result, _human(bs.results) + weak + (f"\nmodel written to {out}" if out else ""))
+    emit(args, result, _human(bs.results) + weak + (f"\nmodel written to {res.model}" if res.model else ""))

@@ -6,9 +6,9 @@ checks the sets scaled by 1 + s) buys margin for unseen data; :func:`cross_valid
 it from the training data alone, so that held-out data stay held out:
 
 1. The recording is cut into *runs*: maximal stretches of consecutive stamps (a pause
-   between recordings, a lost tick, ends one; :func:`reachset_ros.bags.series.segments_of`
-   with every sample valid). In a bag from ``reachset import-lwa4p`` each run is one
-   recording. With fewer runs than folds, the longest is halved until there are K blocks
+   between recordings, a lost tick, ends one; given by the caller, who reads the bags:
+   :func:`reachset_ros.workflows.identify.run_ranges`). In a bag from ``reachset
+   import-lwa4p`` each run is one recording. With fewer runs than folds, the longest is halved until there are K blocks
    (one long recording becomes K contiguous blocks; the test cases that would cross such
    a cut are dropped, about k* per cut).
 2. Block r (in stamp order) goes to fold ``r mod K``; every segment (test cases never span
@@ -32,21 +32,15 @@ import numpy as np
 from ..errors import ReachsetError
 from .validation import validation_grid
 
-__all__ = ["run_ranges", "blocks", "segment_folds", "cross_validate"]
+__all__ = ["blocks", "segment_folds", "cross_validate"]
 
 
-def run_ranges(stamps, dt):
-    """Index ranges ``(start, stop)`` of the runs of sorted stamps: consecutive stamps within
-    ``[0.5, 1.5] dt`` of each other (every sample counted, valid or not)."""
-    from ..bags.series import segments_of     # the one definition of "consecutive"
-    return segments_of(stamps, np.ones(len(stamps), dtype=bool), dt)
-
-
-def blocks(stamps, k, dt):
-    """The folds' blocks of sorted stamps: the runs (:func:`run_ranges`), and while there are
-    fewer than ``k`` the longest block halved (a single long recording becomes ``k``
+def blocks(runs, k):
+    """The folds' blocks: the ``runs`` (index ranges ``(start, stop)`` of the stretches of
+    consecutive stamps, :func:`reachset_ros.workflows.identify.run_ranges`), and while there
+    are fewer than ``k`` the longest block halved (a single long recording becomes ``k``
     contiguous blocks). Index ranges ``(start, stop)`` in stamp order."""
-    out = list(run_ranges(stamps, dt))
+    out = list(runs)
     while 0 < len(out) < k:
         i = max(range(len(out)), key=lambda j: out[j][1] - out[j][0])
         a, b = out[i]
@@ -57,16 +51,15 @@ def blocks(stamps, k, dt):
     return out
 
 
-def segment_folds(series, k, dt):
+def segment_folds(series, k, runs):
     """The segments of a :class:`~reachset_ros.bags.series.JointSeries` cut at its block
-    boundaries (:func:`blocks`), each with its fold (block index mod ``k``).
+    boundaries (:func:`blocks` of its ``runs``), each with its fold (block index mod ``k``).
 
     Returns (segments, folds, n_blocks, n_runs). A segment is only cut where two blocks of
     one run meet (a long recording split for lack of runs); the test cases that would
     cross that boundary are dropped, never split between folds.
     """
-    runs = run_ranges(series.stamps, dt)
-    bl = blocks(series.stamps, k, dt)
+    bl = blocks(runs, k)
     starts = np.array([a for a, _ in bl], dtype=np.int64)
     segs, folds = [], []
     for a, b in series.segments:
@@ -87,7 +80,7 @@ class _Sub:
         self.segments = tuple(segments)
 
 
-def cross_validate(plant, estimator, series, horizon, k, grid, identify, thm):
+def cross_validate(plant, estimator, series, *, horizon, k, grid, identify, thm, runs):
     """Per-joint inflation by ``k``-fold cross-validation (module docstring).
 
     Parameters
@@ -96,6 +89,9 @@ def cross_validate(plant, estimator, series, horizon, k, grid, identify, thm):
         As for :func:`reachset_ros.conformance.validation.validation_grid`.
     series : dict name -> JointSeries
         The identification data.
+    runs : dict name -> sequence of (start, stop)
+        Each joint's runs: index ranges of its stretches of consecutive stamps
+        (:func:`reachset_ros.workflows.identify.run_ranges`).
     k : int
         Number of folds (>= 2).
     grid : sequence of float
@@ -113,7 +109,7 @@ def cross_validate(plant, estimator, series, horizon, k, grid, identify, thm):
     k = int(k)
     assign, out = {}, {}
     for name, s in series.items():
-        segs, folds, n_blocks, n_runs = segment_folds(s, k, s.dt)
+        segs, folds, n_blocks, n_runs = segment_folds(s, k, runs[name])
         if n_blocks < k:
             raise ReachsetError(f"--calibrate {k}: joint {name} has {n_blocks} stretches of consecutive stamps "
                                 f"long enough to split; K folds need at least K")
@@ -124,7 +120,8 @@ def cross_validate(plant, estimator, series, horizon, k, grid, identify, thm):
         held = {n: [seg for seg, g in zip(*assign[n]) if g == f] for n, s in series.items()}
         sets = identify(train)
         for n, s in series.items():
-            rows, chosen, flagged = validation_grid(plant, thm, estimator, sets[n], s.y, s.u, held[n], horizon, grid)
+            rows, chosen, flagged = validation_grid(plant, thm, estimator, sets[n], s.y, s.u, segments=held[n],
+                                                    horizon=horizon, grid=grid)
             out[n]["folds"].append({"fold": f, "segments": len(held[n]), "test_cases": rows[0]["test_cases"],
                                     "chosen_inflation": chosen, "violating_ticks_at_zero": rows[0]["violating_ticks"],
                                     "flagged": flagged})

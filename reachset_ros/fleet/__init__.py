@@ -9,7 +9,12 @@ single-process model to the bit (provenance aside) for any split of the bags.
 * :mod:`.tasks`: the per-bag tasks and their exact merges (no Dask import);
 * :mod:`.cluster`: :class:`~.cluster.Fleet`, the Dask client (imported only with the options).
 
-:func:`extremes` and :func:`check` are the two client-side entry points the commands use.
+:func:`extremes` and :func:`check` are the two client-side entry points the commands and
+the workflows (:mod:`reachset_ros.workflows`) use; the synthesis package never imports this one:
+the workflow hands the fleet's sweep to it (:func:`reachset_ros.workflows.synthesize.sweep_on_fleet`).
+
+May import ``errors``, ``bags``, ``conformance``, ``robot`` (``--input effort``) and ``synthesis``
+(the recorded loop of a re-identification); never ``sim``, ``nodes``, ``workflows`` or ``commands``.
 """
 from .tasks import (BagCheck, BagExtremes, BagHeader, FleetSweep, ReadSpec, SweepSpec, bag_check, bag_extremes, bag_header,
                     merge_checks, merge_extremes, require_agreement)

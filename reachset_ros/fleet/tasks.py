@@ -26,12 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bags import read_estimates, read_references
 from ..bags.messages import header_stamp_ns
 from ..bags.series import PERIOD_TOLERANCE, ReadReport, merge_reports, read_joint_series
 from ..conformance.kernels import require_runs
 from ..conformance.model import file_sha256
 from ..conformance.theorem1 import CheckResult, Deviations, check, combine, deviation_extremes
 from ..errors import ReachsetError
+from ..synthesis.recorded_loop import merge as merge_loops
+from ..synthesis.recorded_loop import series_loop_extremes
 
 #: messages of each topic :func:`bag_header` reads
 HEADER_MESSAGES = 256
@@ -211,16 +214,13 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False, loops
         longest[name] = max((b - a for a, b in s.segments), default=0)
     refs = loop_ext = None
     if references or loops:
-        from ..bags.references import read_references
         refs = read_references([Path(path)], list(series), read.dt)
     if loops:
-        from ..bags.references import read_estimates
-        from ..synthesis.recorded_loop import series_loop_extremes
         est = read_estimates([Path(path)], list(series)) or {}
         loop_ext = {n: series_loop_extremes(sweep.plant, *loops[n], series[n], est.get(n), refs.get(n, ()))
                     for n in loops if n in series}
-    return BagExtremes(str(path), tuple(series), devs, longest, report, refs, file_sha256(path), _messages(report),
-                       loop_ext)
+    return BagExtremes(path=str(path), joints=tuple(series), devs=devs, longest=longest, report=report,
+                       references=refs, sha256=file_sha256(path), messages=_messages(report), loops=loop_ext)
 
 
 def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis):
@@ -275,8 +275,7 @@ def merge_extremes(parts, history, horizon, bags):
                 refs.setdefault(n, []).extend(rs)
     loops = None
     if parts[0].loops is not None:
-        from ..synthesis.recorded_loop import merge
-        loops = {n: merge([p.loops.get(n) for p in parts]) for n in parts[0].loops}
+        loops = {n: merge_loops([p.loops.get(n) for p in parts]) for n in parts[0].loops}
     return FleetSweep(devs, merge_reports([p.report for p in parts]), refs, tuple(p.sha256 for p in parts),
                       loops)
 

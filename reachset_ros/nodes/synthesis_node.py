@@ -1,11 +1,13 @@
 """synthesis_node: offline identification / synthesis from bags, as a ROS service.
 
-``~/synthesize`` (reachset_msgs/srv/Synthesize) runs ``reachset synthesize`` on the given
-bags — the very same code path as the command line, in a child process, so the two agree
-to the bit (the node's executor waits for it: the node answers nothing else meanwhile; the
-child runs at low priority, nice +10, so that it cannot starve the control loop, in a
-process group of its own that SIGINT/SIGTERM to the node stops, and it gets SIGTERM if the
-node dies) —
+``~/synthesize`` (reachset_msgs/srv/Synthesize) runs the synthesis workflow
+(:func:`reachset_ros.workflows.synthesize.synthesize`) on the given bags in a worker process
+(:mod:`reachset_ros.commands._synthesis_worker`: the very same code path as ``reachset
+synthesize``, whose options, ``extra_args`` included, it takes; it hands the result back as
+the library's values, pickled, so the two agree to the bit). The node's executor waits for
+it: the node answers nothing else meanwhile; the worker runs at low priority, nice +10, so
+that it cannot starve the control loop, in a process group of its own that SIGINT/SIGTERM
+to the node stops, and it gets SIGTERM if the node dies —
 publishes the result on ``synthesis/result``
 (latched), and, when ``apply`` is set and every joint is conformant with R_u inside U_p,
 applies the gains and the model through the other nodes' parameter services:
@@ -27,7 +29,7 @@ the node's own ``model_file`` changes only after every target accepted. Mode
 ``reidentify`` keeps the gains of the current model (``model_file`` parameter) and only
 updates the sets.
 """
-import json
+import pickle
 import signal
 import subprocess
 import sys
@@ -47,6 +49,8 @@ from ..errors import ReachsetError
 from ..systems.gains import GAIN_KEYS, TYPE_KEYS, Gains, certify
 from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_parameters, spin_node
 
+#: the worker process: a program run by module name (the node does not import the workflows)
+WORKER = "reachset_ros.commands._synthesis_worker"
 #: per-joint parameters each target takes from a synthesis, besides the ``observer`` and
 #: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
 #: both nodes get the whole pair (observer and controller gains), U_p and the model: each
@@ -184,7 +188,7 @@ class SynthesisNode(Node):
         self.pub = self.create_publisher(SynthesisResult, "synthesis/result", SAFE_STOP_QOS)
         self.create_service(Synthesize, "~/synthesize", self.on_synthesize)
         self.count = 0
-        self.child = None          # the running `reachset synthesize` (subprocess.Popen)
+        self.child = None          # the running synthesis worker (subprocess.Popen)
         self.stopping = False      # SIGINT/SIGTERM received
         # parameter clients live on their own node, spun on demand: the service callback
         # cannot spin the node that is running it
@@ -229,8 +233,8 @@ class SynthesisNode(Node):
         workdir.mkdir(parents=True, exist_ok=True)
         self.count += 1
         out = workdir / f"model_{int(time.time())}_{self.count}_{mode}.yaml"
-        cmd = [sys.executable, "-m", "reachset_ros.cli", "synthesize", *req.bags, "--mode", mode,
-               "--out", str(out), "--json"]
+        # "--json": the command line recorded in the model is the one `reachset synthesize` records
+        cmd = [sys.executable, "-m", WORKER, "synthesize", *req.bags, "--mode", mode, "--out", str(out), "--json"]
         if req.joints:
             cmd += ["--joints", ",".join(req.joints)]
         current = self.get_parameter("model_file").value
@@ -260,7 +264,7 @@ class SynthesisNode(Node):
             return False, "synthesis stopped: the node is shutting down", None, ""
         if p.returncode != 0:
             return False, (p.stderr.strip().splitlines() or ["synthesis failed"])[-1], None, ""
-        data = json.loads(p.stdout)
+        data = pickle.loads(p.stdout)   # the worker's own result (the command's --json object)
         bad = [n for n, j in data.get("joints", {}).items()
                if not j.get("conformant", False) or not j.get("ru_inside_up", True)]
         if bad:
@@ -269,18 +273,18 @@ class SynthesisNode(Node):
         return True, f"{mode}: ||R_e|| {norms}; model {out}", data, str(out)
 
     def run_child(self, cmd):
-        """Run ``cmd`` (``reachset synthesize``) to its end: at low priority, in a process
+        """Run ``cmd`` (the synthesis worker) to its end: at low priority, in a process
         group of its own (:func:`reachset_ros.launch.start_background`), stopped with its
         group when the node gets SIGINT/SIGTERM (:meth:`on_signal`) or is closed.
 
         Returns
         -------
         subprocess.CompletedProcess
-            ``returncode``, ``stdout``, ``stderr`` (text).
+            ``returncode``, ``stdout`` (bytes: the worker's pickled result), ``stderr`` (text).
         """
         if self.stopping:               # the node is shutting down: start nothing
-            return subprocess.CompletedProcess(cmd, -signal.SIGTERM, "", "")
-        proc = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            return subprocess.CompletedProcess(cmd, -signal.SIGTERM, b"", "")
+        proc = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.child = proc
         try:
             if self.stopping:           # a signal came while it was being started
@@ -290,7 +294,7 @@ class SynthesisNode(Node):
             self.child = None
             if proc.returncode is None:     # communicate() did not finish
                 self.stop_child(proc)
-        return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+        return subprocess.CompletedProcess(cmd, proc.returncode, out, err.decode(errors="replace"))
 
     def on_signal(self, signum):
         """SIGINT/SIGTERM (called from the signal handler of
@@ -313,7 +317,7 @@ class SynthesisNode(Node):
             proc.wait()
 
     def close(self):
-        """Node shutdown: no ``reachset synthesize`` child is left running."""
+        """Node shutdown: no synthesis worker is left running."""
         if self.child is not None:
             self.stop_child(self.child)
 

@@ -9,15 +9,13 @@ Fig. 4) around a user-given ``record(gains) -> data`` callable.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .. import conformance as cf
-from ..bags import read_joint_series
-from ..bags.messages import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC
-from ..bags.references import read_estimates, read_references
+from ..bags import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC, read_estimates, read_joint_series, read_references
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
 from ..errors import ReachsetError
@@ -29,7 +27,7 @@ from .problem import problems_from_series
 from .reference_error import ReferenceClass, ReferenceMethod
 
 
-def iterate(record, series, space, iterations=2, final_reidentify=True, plant=None, estimator=None,
+def iterate(record, series, space, *, iterations=2, final_reidentify=True, plant=None, estimator=None,
             horizon=125, u_max=26.0, u_ff=2.0, search=None, seed=0,
             reference_method=ReferenceMethod.REFERENCE_SET, dt=0.004, allow_weak_horizon=False,
             reference_class=None, initial_state_set=True):
@@ -75,8 +73,8 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
     if not isinstance(series, (dict, tuple)) and not data:
         raise ReachsetError("iterate: no data")
     for it in range(int(iterations)):
-        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
-                                     thm=thm, reference_class=reference_class)
+        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs,
+                                     reference_method=reference_method, thm=thm, reference_class=reference_class)
         seeds = {n: [r.params] for n, r in prev.items()} if prev else None
         res = synthesize(probs, space, "combined", search, seed, seeds, with_separate=(it == 0))
         step = f"synthesis {it + 1}"
@@ -89,8 +87,8 @@ def iterate(record, series, space, iterations=2, final_reidentify=True, plant=No
             data, refs = _as_series(record({n: r.gains() for n, r in prev.items()}), dt)
     kept = {n: b[1] for n, b in best.items()}
     if final_reidentify and prev:
-        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs, reference_method,
-                                     thm=thm, reference_class=reference_class)
+        probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs,
+                                     reference_method=reference_method, thm=thm, reference_class=reference_class)
         res = synthesize(probs, space, "reidentify", gains={n: r.gains() for n, r in prev.items()})
         history.append({"step": "re-identification", "results": res, "kept": kept})
     elif prev:
@@ -110,7 +108,7 @@ def _as_series(data, dt):
 
 
 # ====================================================================== bags in, model out
-@dataclass
+@dataclass(kw_only=True)
 class BagSynthesis:
     """Everything :func:`synthesize_bags` computed (the CLI and the synthesis node use it)."""
 
@@ -149,32 +147,33 @@ class BagSynthesis:
         """The :class:`reachset_ros.conformance.model.ConformanceModel` of the results (gains per joint)."""
         joints = {}
         for n, r in self.results.items():
-            joints[n] = mdl.JointSets(tuple(r.alpha_w.tolist()), tuple(r.alpha_v.tolist()), tuple(r.c_w.tolist()),
-                                      tuple(r.c_v.tolist()), r.test_cases, self.horizon, r.gains(),
-                                      {"reference_error": r.reference, "conformant": r.conformant})
-        return mdl.ConformanceModel(self.plant, self.plant_spec, self.estimator, self.horizon, joints,
-                                    float(self.inflation), mdl.provenance(self.bags, command, self.sha256),
-                                    self.minimum_horizon,
-                                    self.horizon_below_minimum, bool(self.initial_state_set))
+            joints[n] = mdl.JointSets(alpha_w=tuple(r.alpha_w.tolist()), alpha_v=tuple(r.alpha_v.tolist()),
+                                      c_w=tuple(r.c_w.tolist()), c_v=tuple(r.c_v.tolist()), test_cases=r.test_cases,
+                                      horizon=self.horizon, gains=r.gains(),
+                                      extra={"reference_error": r.reference, "conformant": r.conformant})
+        return mdl.ConformanceModel(plant=self.plant, plant_spec=self.plant_spec, estimator=self.estimator,
+                                    horizon=self.horizon, joints=joints, inflation=float(self.inflation),
+                                    provenance=mdl.provenance(self.bags, command, self.sha256),
+                                    minimum_horizon=self.minimum_horizon,
+                                    horizon_below_minimum=self.horizon_below_minimum,
+                                    initial_state_set=bool(self.initial_state_set))
 
 
-def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controller=None, free=None, fix=None,
-                    bounds=None, u_max=None, u_ff=None, horizon=None, estimator=None, alpha_lower=None,
-                    reference_method=ReferenceMethod.REFERENCE_SET, eso_input="previous", seed=None, lqg_r=(),
-                    config=None, model=None,
-                    dt=0.004, allow_weak_horizon=False, reference_class=None, inflation=None, topics=None,
-                    reader=None, initial_state_set=None, fleet=None, fleet_read=None):
-    """Read bags, build the per-joint problems and run ``mode`` (what ``reachset synthesize`` does).
+@dataclass(frozen=True, kw_only=True)
+class SynthesisOptions:
+    """What to synthesise from bags and how (``reachset synthesize``'s options, as values).
 
-    Parameters
+    Attributes
     ----------
-    bags : sequence of path
-    joints : list of str or None (all joints on both topics; reidentify: the model's joints)
+    joints : list of str or None
+        None: all joints on both topics (reidentify: the model's joints).
     mode : {"combined", "separate", "reidentify"}
-    observer, controller, free, fix, bounds, eso_input : the search space (:meth:`SearchSpace.from_config`)
+    observer, controller, free, fix, bounds, eso_input
+        The search space (:meth:`SearchSpace.from_config`).
     u_max : float, list (one per joint) or dict, optional
         Default: the gains' ``u_max`` (reidentify), else the config's per-joint value.
-    u_ff, horizon, estimator, alpha_lower, reference_method, seed, lqg_r : see the CLI
+    u_ff, horizon, estimator, alpha_lower, reference_method, seed, lqg_r
+        See the CLI.
     config : path of a synthesis config (default ``config/synthesis.yaml``)
     model : path of a model file (mode reidentify: its gains are kept; its plant, estimator
         and horizon are used unless given)
@@ -182,7 +181,7 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         Accept a horizon below the plant's minimum (recorded in the model); otherwise such a
         horizon is refused (:func:`reachset_ros.conformance.kernels.require_minimum_horizon`,
         the rule ``identify`` applies too).
-    reference_class : ReferenceClass, optional
+    reference_class : ReferenceClass or str, optional
         Bound the reference error (Appendix B) over this class instead of the bags'
         ``/reference`` (which must then lie in it). Without it every joint needs recorded
         references (reidentify: or a class recorded in the model); otherwise refused.
@@ -199,77 +198,167 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
         (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`); recorded in the model.
         Default true (reidentify: the model's); false: the paper's eq. 13 (docs/synthesis.md,
         "Where the room in ||R*_e|| is").
-    fleet : reachset_ros.fleet.cluster.Fleet, optional
-        An open fleet: the bags are swept one task per bag on it (:mod:`reachset_ros.fleet`),
-        read as ``fleet_read`` (a :class:`~reachset_ros.fleet.ReadSpec`; its joints and dt are
-        set here) says; the result is the single-process one to the bit.
-
-    Returns
-    -------
-    BagSynthesis
     """
-    cfg = load_config(config)
+
+    joints: list | None = None
+    mode: str = "combined"
+    observer: str = "hg"
+    controller: str | None = None
+    free: list | None = None
+    fix: dict | None = None
+    bounds: dict | None = None
+    u_max: object = None
+    u_ff: float | None = None
+    horizon: int | None = None
+    estimator: str | None = None
+    alpha_lower: list | None = None
+    reference_method: int = ReferenceMethod.REFERENCE_SET
+    eso_input: str = "previous"
+    seed: int | None = None
+    lqg_r: tuple = ()
+    config: str | None = None
+    model: str | None = None
+    dt: float = 0.004
+    allow_weak_horizon: bool = False
+    reference_class: object = None
+    inflation: float | None = None
+    topics: tuple | None = None
+    reader: dict | None = None
+    initial_state_set: bool | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class SynthesisPlan:
+    """What a synthesis from bags fixes before any bag is read (:func:`plan`).
+
+    ``names``: the joints asked for (None: all); ``gains``, ``model_classes``: reidentify's
+    kept gains and recorded reference classes per joint; ``loops``: reidentify's kept loops
+    ({name: (observer, controller)}) whose recorded closed loop the sets must also hold
+    (:mod:`~reachset_ros.synthesis.recorded_loop`).
+    """
+
+    bags: tuple
+    options: SynthesisOptions
+    cfg: dict
+    plant: object
+    plant_spec: dict
+    estimator: object
+    horizon: int
+    thm: object
+    names: list | None
+    gains: dict | None
+    model_classes: dict
+    space: object
+    inflation: float
+    initial_state_set: bool
+    minimum_horizon: int
+    horizon_below_minimum: bool
+    loops: dict | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class BagData:
+    """The bags' data a synthesis needs: the series (one process, :func:`read_bags`) or, from
+    a fleet's sweep (:mod:`reachset_ros.fleet`, chosen by the workflow), the deviation
+    extremes with a ``checker`` that counts a non-conformant xi's violating ticks.
+
+    ``references`` {name: [Reference]}; ``loops`` {name: LoopExtremes or None} (reidentify);
+    ``sha256`` the bags' hashes when the fleet's workers computed them.
+    """
+
+    names: list
+    series: dict | None
+    devs: dict | None
+    report: object
+    references: dict
+    loops: dict | None = None
+    sha256: tuple | None = None
+    checker: object = None
+
+
+def plan(bags, options: SynthesisOptions):
+    """Check ``options`` and fix everything that does not need the bags (:class:`SynthesisPlan`):
+    the plant, estimator, horizon and Theorem-1 rows, the search space or (reidentify) the
+    kept gains of ``options.model``."""
+    o = options
+    cfg = load_config(o.config)
     bags = tuple(Path(b) for b in bags)
-    if mode not in ("combined", "separate", "reidentify"):
-        raise ReachsetError(f"unknown mode {mode!r} (combined, separate or reidentify)")
-    if mode == "reidentify":
-        if not model:
+    if o.mode not in ("combined", "separate", "reidentify"):
+        raise ReachsetError(f"unknown mode {o.mode!r} (combined, separate or reidentify)")
+    if o.mode == "reidentify":
+        if not o.model:
             raise ReachsetError("mode reidentify needs a model file whose gains are kept")
-        base = mdl.load(model)
+        base = mdl.load(o.model)
         plant, plant_spec = base.plant, base.plant_spec
-        horizon = base.horizon if horizon is None else int(horizon)
-        est = base.estimator if estimator is None else Estimator.named(estimator, base.plant)
+        horizon = base.horizon if o.horizon is None else int(o.horizon)
+        est = base.estimator if o.estimator is None else Estimator.named(o.estimator, base.plant)
         gains = {n: j.gains for n, j in base.joints.items()}
         model_classes = {n: (j.extra or {}).get("reference_error", {}).get("reference_class")
                          for n, j in base.joints.items()}
-        names = list(base.joints) if not joints else list(joints)
+        names = list(base.joints) if not o.joints else list(o.joints)
         for n in names:
             if n not in base.joints:
-                raise ReachsetError(f"joint {n} is not in the model {model}")
+                raise ReachsetError(f"joint {n} is not in the model {o.model}")
         space = None
-        inflation = base.inflation if inflation is None else inflation
-        initial_state_set = base.initial_state_set if initial_state_set is None else initial_state_set
+        inflation = base.inflation if o.inflation is None else o.inflation
+        initial_state_set = base.initial_state_set if o.initial_state_set is None else o.initial_state_set
     else:
-        if model:
+        if o.model:
             raise ReachsetError("a model file is only used with mode reidentify")
-        plant, plant_spec = lwa4p_joint_plant(dt=dt), {"kind": "lwa4p_joint", "dt": dt}
-        horizon = 125 if horizon is None else int(horizon)
-        est = Estimator.named(estimator or "fd", lwa4p_joint_plant(dt=dt))
-        gains, names = None, (list(joints) if joints else None)
+        plant, plant_spec = lwa4p_joint_plant(dt=o.dt), {"kind": "lwa4p_joint", "dt": o.dt}
+        horizon = 125 if o.horizon is None else int(o.horizon)
+        est = Estimator.named(o.estimator or "fd", lwa4p_joint_plant(dt=o.dt))
+        gains, names = None, (list(o.joints) if o.joints else None)
         model_classes = {}
-        space = SearchSpace.from_config(cfg, observer, controller, free, fix, bounds, eso_input, dt)
+        space = SearchSpace.from_config(cfg, observer=o.observer, controller=o.controller, free=o.free, fix=o.fix,
+                                        bounds=o.bounds, eso_input=o.eso_input, dt=o.dt)
+        inflation, initial_state_set = o.inflation, o.initial_state_set
     if horizon < 0:
         raise ReachsetError("horizon must be >= 0")
     inflation = 0.0 if inflation is None else float(inflation)
     if not (math.isfinite(inflation) and inflation >= 0):
         raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
-    k_min, weak = cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
+    k_min, weak = cf.require_minimum_horizon(plant, horizon, o.allow_weak_horizon)
     initial_state_set = True if initial_state_set is None else bool(initial_state_set)
     thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)
-    devs = checker = sha256 = series = None
     # reidentify: the kept gains' loops, to read the bags' recorded closed loop (recorded_loop)
     loops = ({n: components_from_gains(gains[n], plant.dt) for n in names if gains.get(n)}
-             if mode == "reidentify" else None)
-    if fleet is None:
-        series, report = read_joint_series(list(bags), names, plant.dt, tuple(topics) if topics else
-                                           (JOINT_STATES, PLANT_INPUT), **(reader or {}))
-        names = list(series)
-        cf.require_horizon(series, est.history, horizon, bags)
-    else:
-        from dataclasses import replace
+             if o.mode == "reidentify" else None)
+    return SynthesisPlan(bags=bags, options=o, cfg=cfg, plant=plant, plant_spec=plant_spec, estimator=est,
+                         horizon=horizon, thm=thm, names=names, gains=gains, model_classes=model_classes, space=space,
+                         inflation=inflation, initial_state_set=initial_state_set, minimum_horizon=k_min,
+                         horizon_below_minimum=weak, loops=loops)
 
-        from .. import fleet as fl
-        read = replace(fleet_read, joints=None if names is None else tuple(names), dt=plant.dt)
-        sweep = fl.SweepSpec(plant, est, horizon, thm)
-        swept = fl.extremes(fleet, bags, read, sweep, references=True, loops=loops)
-        devs, report, sha256 = swept.devs, swept.report, swept.sha256
-        names = list(devs)
-        checker = fl.Checker(fleet, bags, read, sweep)
-    if mode == "reidentify":
-        missing = [n for n in names if not gains.get(n)]
+
+def read_bags(pl: SynthesisPlan):
+    """The bags' series, references and (reidentify) recorded loops, read in this process."""
+    o, plant = pl.options, pl.plant
+    series, report = read_joint_series(list(pl.bags), pl.names, plant.dt,
+                                       tuple(o.topics) if o.topics else (JOINT_STATES, PLANT_INPUT),
+                                       **(o.reader or {}))
+    names = list(series)
+    cf.require_horizon(series, pl.estimator.history, pl.horizon, pl.bags)
+    _require_gains(pl, names)
+    refs = read_references(list(pl.bags), names, plant.dt)
+    loop_ext = None
+    if pl.loops:
+        est_rows = read_estimates(list(pl.bags), names) or {}
+        loop_ext = {n: rl.series_loop_extremes(plant, *pl.loops[n], series[n], est_rows.get(n), refs.get(n, ()))
+                    for n in names if n in pl.loops}
+    return BagData(names=names, series=series, devs=None, report=report, references=refs, loops=loop_ext)
+
+
+def _require_gains(pl: SynthesisPlan, names):
+    if pl.options.mode == "reidentify":
+        missing = [n for n in names if not pl.gains.get(n)]
         if missing:
-            raise ReachsetError(f"joint {missing[0]}: the model {model} has no gains to keep fixed")
-    # U_p per joint
+            raise ReachsetError(f"joint {missing[0]}: the model {pl.options.model} has no gains to keep fixed")
+
+
+def _u_max(pl: SynthesisPlan, names):
+    """U_p per joint: ``options.u_max`` (one value, one per joint or a dict), else the kept
+    gains' (reidentify) or the config's."""
+    u_max, gains, cfg = pl.options.u_max, pl.gains, pl.cfg
     if u_max is None:
         um = {n: float(gains[n]["u_max"]) if gains and "u_max" in gains.get(n, {}) else u_max_for(cfg, n)
               for n in names}
@@ -286,28 +375,56 @@ def synthesize_bags(bags, joints=None, mode="combined", observer="hg", controlle
     for n, v in um.items():
         if not (math.isfinite(v) and v > 0):
             raise ReachsetError(f"joint {n}: u_max must be positive, got {v}")
-    uff = float(cfg.get("u_ff", 2.0) if u_ff is None else u_ff)
-    search = dict(cfg.get("search", {}))
-    seed = int(search.get("seed", 0) if seed is None else seed)
+    return um
+
+
+def solve(pl: SynthesisPlan, data: BagData):
+    """Build the per-joint problems from ``data`` and run the plan's mode (:class:`BagSynthesis`)."""
+    o, names = pl.options, data.names
+    _require_gains(pl, names)
+    um = _u_max(pl, names)
+    uff = float(pl.cfg.get("u_ff", 2.0) if o.u_ff is None else o.u_ff)
+    search = dict(pl.cfg.get("search", {}))
+    seed = int(search.get("seed", 0) if o.seed is None else o.seed)
     if seed < 0:
         raise ReachsetError(f"seed must be >= 0, got {seed}")
-    refs = read_references(list(bags), names, plant.dt) if fleet is None else swept.references
-    classes = _reference_classes(names, refs, reference_class, model_classes, bags)
-    problems = problems_from_series(series, plant, est, horizon, um, uff, refs, reference_method, alpha_lower,
-                                    thm=thm, reference_class=classes, inflation=inflation, devs=devs,
-                                    checker=checker)
-    if loops:      # the sets must also hold the closed loop the bags recorded with the kept gains
-        if fleet is None:
-            est_rows = read_estimates(list(bags), names) or {}
-            loop_ext = {n: rl.series_loop_extremes(plant, *loops[n], series[n], est_rows.get(n), refs.get(n, ()))
-                        for n in names if n in loops}
-        else:
-            loop_ext = swept.loops or {}
-        problems = [rl.constrain(pb, gains[pb.name], loop_ext.get(pb.name)) for pb in problems]
-    results = synthesize(problems, space, mode, search, seed, gains=gains, lqg_r=tuple(lqg_r or ()))
-    return BagSynthesis(results, problems, report, plant, plant_spec, est, horizon, space, mode, seed,
-                        int(reference_method), bags, k_min, weak, reference_class, inflation, initial_state_set,
-                        sha256)
+    refs = data.references
+    classes = _reference_classes(names, refs, o.reference_class, pl.model_classes, pl.bags)
+    problems = problems_from_series(data.series, pl.plant, pl.estimator, pl.horizon, um, uff, refs,
+                                    reference_method=o.reference_method, alpha_lower=o.alpha_lower, thm=pl.thm,
+                                    reference_class=classes, inflation=pl.inflation, devs=data.devs,
+                                    checker=data.checker)
+    if pl.loops:      # the sets must also hold the closed loop the bags recorded with the kept gains
+        loop_ext = data.loops or {}
+        problems = [rl.constrain(pb, pl.gains[pb.name], loop_ext.get(pb.name)) for pb in problems]
+    results = synthesize(problems, pl.space, o.mode, search, seed, gains=pl.gains, lqg_r=tuple(o.lqg_r or ()))
+    return BagSynthesis(results=results, problems=problems, report=data.report, plant=pl.plant,
+                        plant_spec=pl.plant_spec, estimator=pl.estimator, horizon=pl.horizon, space=pl.space,
+                        mode=o.mode, seed=seed, reference_method=int(o.reference_method), bags=pl.bags,
+                        minimum_horizon=pl.minimum_horizon, horizon_below_minimum=pl.horizon_below_minimum,
+                        reference_class=o.reference_class, inflation=pl.inflation,
+                        initial_state_set=pl.initial_state_set, sha256=data.sha256)
+
+
+def synthesize_bags(bags, options: SynthesisOptions = None, **kw):
+    """Read bags, build the per-joint problems and run the mode (what ``reachset synthesize``
+    does, in one process; :func:`reachset_ros.workflows.synthesize.synthesize` also sweeps on a
+    fleet).
+
+    Parameters
+    ----------
+    bags : sequence of path
+    options : SynthesisOptions, optional
+    **kw
+        Instead of (or over) ``options``: its fields by name.
+
+    Returns
+    -------
+    BagSynthesis
+    """
+    options = replace(options, **kw) if options is not None else SynthesisOptions(**kw)
+    pl = plan(bags, options)
+    return solve(pl, read_bags(pl))
 
 
 def _reference_classes(names, refs, reference_class, model_classes, bags):

@@ -116,7 +116,7 @@ class AlphaPolytope:
 
 
 # ====================================================================== per-joint problem
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JointProblem:
     """Everything about one joint that does not depend on the controller parameters.
 
@@ -157,7 +157,7 @@ class JointProblem:
         return 1.0 + self.inflation
 
     @classmethod
-    def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0,
+    def prepare(cls, name, plant, estimator, y, u, segments, horizon=125, u_max=26.0, u_ff=2.0, *,
                 thm=None, references=(), reference_method=ReferenceMethod.REFERENCE_SET, alpha_lower=None,
                 stamps=None, reference_class=None, inflation=0.0, devs=None, checker=None):
         """Deviation extremes (one sweep over all test cases) and the reduced Theorem-1 rows.
@@ -212,10 +212,12 @@ class JointProblem:
             raise type(e)(f"joint {name}: {e}") from None
         windows = (reference_windows(refs) if (refs and reference_class is None
                                                and reference_method == ReferenceMethod.REFERENCE_SET) else ())
-        return cls(name, plant, estimator, thm, devs, horizon, poly, float(u_max), float(u_ff),
-                   None if y is None else cf.as_2d(y), None if u is None else cf.as_2d(u),
-                   None if segments is None else tuple(segments), refs, reference_method,
-                   poly.lower, stamps, windows, reference_class, float(inflation), checker)
+        return cls(name=name, plant=plant, estimator=estimator, thm=thm, devs=devs, horizon=horizon, polytope=poly,
+                   u_max=float(u_max), u_ff=float(u_ff), y=None if y is None else cf.as_2d(y),
+                   u=None if u is None else cf.as_2d(u), segments=None if segments is None else tuple(segments),
+                   references=refs, reference_method=reference_method, alpha_lower=poly.lower, stamps=stamps,
+                   ref_windows=windows, reference_class=reference_class, inflation=float(inflation),
+                   checker=checker)
 
     @property
     def test_cases(self):
@@ -270,8 +272,10 @@ def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, referen
         um = u_max[name] if isinstance(u_max, dict) else u_max
         refs = (references or {}).get(name, ())
         rc = reference_class.get(name) if isinstance(reference_class, dict) else reference_class
-        out.append(JointProblem.prepare(name, plant, estimator, *((s.y, s.u, s.segments) if s else (None,) * 3),
-                                        horizon, um, u_ff, thm, refs, reference_method, alpha_lower,
-                                        s.stamps if s else None, rc, inflation,
-                                        devs=None if devs is None else devs[name], checker=checker))
+        y, u, segments, stamps = (s.y, s.u, s.segments, s.stamps) if s else (None,) * 4
+        out.append(JointProblem.prepare(name, plant, estimator, y, u, segments, horizon=horizon, u_max=um, u_ff=u_ff,
+                                        thm=thm, references=refs, reference_method=reference_method,
+                                        alpha_lower=alpha_lower, stamps=stamps, reference_class=rc,
+                                        inflation=inflation, devs=None if devs is None else devs[name],
+                                        checker=checker))
     return out

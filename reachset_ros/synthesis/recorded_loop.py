@@ -204,8 +204,8 @@ def series_loop_extremes(plant, observer, controller, series, estimates, referen
     rv = _at(st, rs, np.column_stack([np.concatenate([getattr(r, k) for r in refs]) for k in ("q", "qd", "qdd")]))
     have = np.all(np.isfinite(xh[:, :2]), axis=1) & np.all(np.isfinite(rv), axis=1)
     xh = np.where(np.isfinite(xh), xh, 0.0)      # an ESO's disturbance may be absent (NaN) in the bag
-    ext = loop_extremes(plant, observer, controller, series.y, series.u, xh, rv[:, 0], rv[:, 1], rv[:, 2],
-                        _runs(have, series.segments))
+    ext = loop_extremes(plant, observer, controller, y=series.y, u=series.u, x_hat=xh, q_d=rv[:, 0], qd_d=rv[:, 1],
+                        qdd_d=rv[:, 2], segments=_runs(have, series.segments))
     return ext if ext.ticks or ext.checked else None
 
 

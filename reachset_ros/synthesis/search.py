@@ -146,23 +146,24 @@ class Evaluator:
         cu = s * np.concatenate([Kw[ne], Kv[ne]])
         room = pb.u_max - pb.u_ff - ref_u
         rhs = room - U_MARGIN * pb.u_max
+        common = dict(values=values, stable=True, ru_room=room, Kw=Kw, Kv=Kv, ref=ref)
         if self.alpha_fixed is not None:
             alpha = self.alpha_fixed
             ru = float(cu @ alpha)
             if ru <= rhs:
                 re = float(ce @ alpha) + ref_norm
-                return Evaluation(values, True, True, re, re, alpha, ru, room, None, "", Kw, Kv, ref)
+                return Evaluation(feasible=True, merit=re, re_norm=re, alpha=alpha, ru_radius=ru, **common)
             viol = (ru - rhs) / max(pb.u_max, 1.0)
-            return Evaluation(values, True, False, PENALTY + viol, None, alpha, ru, room, ru,
-                              "R_u outside U_p", Kw, Kv, ref)
+            return Evaluation(feasible=False, merit=PENALTY + viol, alpha=alpha, ru_radius=ru, min_ru_radius=ru,
+                              reason="R_u outside U_p", **common)
         alpha, val = pb.polytope.minimize(ce, cu, rhs) if rhs > 0 else (None, None)
         if alpha is not None:
             re = val + ref_norm
-            return Evaluation(values, True, True, re, re, alpha, float(cu @ alpha), room, None, "", Kw, Kv, ref)
+            return Evaluation(feasible=True, merit=re, re_norm=re, alpha=alpha, ru_radius=float(cu @ alpha), **common)
         amin, umin = pb.polytope.minimize(cu)
         viol = (umin - rhs) / max(pb.u_max, 1.0)
-        return Evaluation(values, True, False, PENALTY + viol, None, None, None, room, umin,
-                          "R_u outside U_p", Kw, Kv, ref)
+        return Evaluation(feasible=False, merit=PENALTY + viol, min_ru_radius=umin, reason="R_u outside U_p",
+                          **common)
 
 
 # ====================================================================== outer search

@@ -1,0 +1,427 @@
+"""Reachset-conformant identification from bags (Theorem 1, HiGHS LP): the workflow of
+``reachset identify`` (see :mod:`reachset_ros.commands.identify` for the options).
+
+:func:`identify` reads the bags (or sweeps them on a fleet, :mod:`reachset_ros.fleet`),
+identifies every joint (:func:`identify_series`), optionally calibrates the inflation by
+K-fold cross-validation (:func:`reachset_ros.conformance.calibration.cross_validate`,
+:func:`calibrate_margin`) or on held-out bags (:func:`validate`), writes the model file and
+returns an :class:`IdentifyResult` whose :meth:`~IdentifyResult.to_json` is the command's
+``--json`` object.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import fleet as fl
+from ..bags import read_joint_series, segments_of
+from ..bags.messages import JOINT_STATES, PLANT_INPUT
+from ..conformance import model as mdl
+from ..conformance.calibration import cross_validate
+from ..conformance.corollary1 import identify_corollary1
+from ..conformance.estimators import Estimator
+from ..conformance.identify import identify_quadratic, identify_sets, stable_horizon
+from ..conformance.kernels import require_horizon, require_minimum_horizon
+from ..conformance.theorem1 import Theorem1, deviation_extremes_many
+from ..conformance.validation import detection_delay, validation_grid
+from ..errors import ReachsetError
+from ..systems.plant import lwa4p_joint_plant
+
+__all__ = ["DEFAULT_GRID", "IdentifyOptions", "IdentifyResult", "calibrate_margin", "check_options", "identify",
+           "identify_series", "inflation_grid", "model_joint_sets", "run_ranges", "validate"]
+
+#: inflations tried on validation bags or folds (``--inflation-grid``'s default)
+DEFAULT_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyOptions:
+    """What to identify and how (``reachset identify``'s options, as values).
+
+    Attributes
+    ----------
+    bags : tuple of path
+    joints : list of str or None
+        None: every joint on both topics.
+    dt : float
+    topics : (str, str)
+        Measurement and plant-input topic.
+    reader : dict
+        More :func:`reachset_ros.bags.read_joint_series` options (``effort``, ``joint_names``).
+    horizon, allow_weak_horizon, estimator, initial_state_set, centers, alpha_lower, cost, method
+        As the command's options.
+    validate : tuple of path or None
+        Held-out bags (``--validate``).
+    inflation_grid : tuple of float or None
+        ``--inflation-grid`` (None: :data:`DEFAULT_GRID`).
+    inflation : float or None
+    calibrate : int or None
+        K of ``--calibrate K``.
+    calibrate_margin : int
+    fault_accel : float
+    out : path or None
+        Where the model file is written.
+    command : str
+        The command line recorded in the model's provenance.
+    """
+
+    bags: tuple
+    joints: list | None = None
+    dt: float = 0.004
+    topics: tuple = (JOINT_STATES, PLANT_INPUT)
+    reader: dict = field(default_factory=dict)
+    horizon: int = 125
+    allow_weak_horizon: bool = False
+    estimator: str = "fd"
+    initial_state_set: bool = False
+    centers: str = "zero"
+    alpha_lower: tuple | None = None
+    cost: str = "linear"
+    method: str = "theorem1"
+    validate: tuple | None = None
+    inflation_grid: tuple | None = None
+    inflation: float | None = None
+    calibrate: int | None = None
+    calibrate_margin: int = 0
+    fault_accel: float = 5.0
+    out: Path | None = None
+    command: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyResult:
+    """What :func:`identify` computed.
+
+    ``joints`` holds per joint the ``--json`` values (sets, checks, Remark 3's threshold and,
+    when computed, ``inflation``/``calibration`` or ``validation``); ``model_sets`` the model
+    file's :class:`~reachset_ros.conformance.model.JointSets`.
+    """
+
+    inflation: float
+    joints: dict
+    model_sets: dict
+    data: dict
+    cost: str
+    method: str
+    horizon: int
+    minimum_horizon: int
+    horizon_below_minimum: bool
+    initial_state_set: bool
+    calibrate: int | None = None
+    calibrated_inflation: float | None = None
+    calibration: dict | None = None
+    validation_data: dict | None = None
+    model: str | None = None
+
+    def to_json(self):
+        """The ``reachset identify --json`` object."""
+        out = {"inflation": self.inflation, "joints": self.joints, "data": self.data, "cost": self.cost,
+               "method": self.method, "horizon": self.horizon, "minimum_horizon": self.minimum_horizon,
+               "horizon_below_minimum": self.horizon_below_minimum, "initial_state_set": self.initial_state_set}
+        if self.calibration is not None:
+            out["calibrated_inflation"] = self.calibrated_inflation
+        if self.validation_data is not None:
+            out["validation_data"] = self.validation_data
+        if self.model is not None:
+            out["model"] = self.model
+        return out
+
+    def human(self):
+        """The command's text output (one line per joint, then validation and calibration)."""
+        js, horizon = self.joints, self.horizon
+        lines = [f"{n}: alpha_w={v['alpha_w']} alpha_v={v['alpha_v']} test_cases={v['test_cases']} "
+                 + (f"(sets stop changing at k={v['stable_horizon']})" if v["horizon_settled"] else
+                    f"(sets still changing at k*={horizon}: Remark 3's threshold not reached)"
+                    if v["horizon_settled"] is False else "") for n, v in js.items()]
+        if self.horizon_below_minimum:
+            lines.append(f"WEAK GUARANTEE: horizon {horizon} is below the plant's minimum {self.minimum_horizon} "
+                         "(--allow-weak-horizon)")
+        for n, v in js.items():
+            val = v.get("validation")
+            if val:
+                f = val["fault"]
+                lines.append(
+                    f"{n}: held-out violation rate {val['at_zero']['violation_rate']:.3g} at inflation 0; "
+                    f"smallest conformant inflation {val['chosen_inflation']}"
+                    + (" (FLAGGED: no grid value is conformant)" if val["flagged"] else "")
+                    + f"; {f['accel']} rad/s^2 fault at inflation {val['model_inflation']} "
+                    + (f"detected after {f['delay_ticks']} ticks" if f["detected"] else "NOT detected"))
+        if self.calibration is not None:
+            for n, c in self.calibration.items():
+                lines.append(f"{n}: cross-validated inflation {c['inflation']} ({self.calibrate} folds of "
+                             f"{c['runs']} runs; per fold " + ", ".join(str(f["chosen_inflation"]) for f in c["folds"])
+                             + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
+        if self.validation_data is not None or self.calibration is not None:
+            lines.append(f"model inflation: {self.inflation}")
+        return "\n".join(lines) + (f"\nmodel written to {self.model}" if self.model else "")
+
+
+def calibrate_margin(calibrated, grid, steps):
+    """The inflation ``steps`` grid values above the cross-validated one (``--calibrate-margin``).
+
+    Cross-validation (:func:`reachset_ros.conformance.calibration.cross_validate`) finds the
+    inflation that the worst of K held-out folds needed. A monitored run M folds long is M
+    more draws of the same kind: under exchangeability the chance that all of them stay within
+    the worst of the K folds is K / (K + M) (for the fault campaign's 6 folds of 40 s and a
+    48-min run, 8 %), so a long run needs a margin that the folds cannot measure. This is a
+    chosen margin, not a calibrated one: above the grid's largest value the largest is kept
+    and the caller is told so by the returned value equalling it.
+    """
+    values = sorted({0.0, *map(float, grid)})
+    above = [v for v in values if v > calibrated]
+    return above[min(steps, len(above)) - 1] if above else values[-1]
+
+
+def run_ranges(stamps, dt):
+    """Index ranges ``(start, stop)`` of the runs of sorted stamps: consecutive stamps within
+    ``[0.5, 1.5] dt`` of each other (every sample counted, valid or not;
+    :func:`reachset_ros.bags.segments_of`, the one definition of "consecutive"). The runs
+    :func:`~reachset_ros.conformance.calibration.cross_validate` cuts into folds."""
+    return segments_of(stamps, np.ones(len(stamps), dtype=bool), dt)
+
+
+def identify_series(plant, est, series, horizon, *, centers="zero", alpha_lower=None, thm=None,
+                    cost="linear", method="theorem1", settle=True, devs=None):
+    """Identify each joint of ``series``; returns {name: (IdentifiedSets, Deviations, settled_k)}.
+
+    ``settled_k`` (Remark 3) is computed with the linear cost; it is None for Corollary 1,
+    which needs no horizon, and when ``settle`` is false (the folds of ``--calibrate``).
+    ``devs``: the joints' deviation extremes when already reduced (a fleet run,
+    :mod:`reachset_ros.fleet`; ``series`` is then not read by Theorem 1).
+    """
+    thm = thm or Theorem1.build(plant, horizon)
+    out = {}
+    if devs is None:
+        devs = deviation_extremes_many(plant, est, series, horizon, thm)
+    for name, dev in devs.items():
+        try:
+            if method == "corollary1":
+                s = series[name]
+                sets = identify_corollary1(plant, est, s.y, s.u, s.segments, centers=centers,
+                                           alpha_lower=alpha_lower, horizon=horizon, thm=thm)
+                settled = None
+            else:
+                if cost == "quadratic":
+                    sets = identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                else:
+                    sets = identify_sets(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
+                settled = (stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)[0]
+                           if settle else None)
+        except ReachsetError as e:
+            raise ReachsetError(f"joint {name}: {e}") from None
+        out[name] = (sets, dev, settled)
+    return out, thm
+
+
+def model_joint_sets(sets, dev, horizon):
+    """The model-file value (:class:`~reachset_ros.conformance.model.JointSets`) of one joint's
+    identified sets ``sets`` with its deviations ``dev``."""
+    return mdl.JointSets(alpha_w=tuple(sets.alpha_w.tolist()), alpha_v=tuple(sets.alpha_v.tolist()),
+                         c_w=tuple(sets.c_w.tolist()), c_v=tuple(sets.c_v.tolist()), test_cases=dev.test_cases,
+                         horizon=horizon)
+
+
+def inflation_grid(values):
+    """The inflations tried: ``values`` (None: :data:`DEFAULT_GRID`) and 0, sorted."""
+    g = DEFAULT_GRID if values is None else tuple(values)
+    if not all(np.isfinite(v) and v >= 0 for v in g):
+        raise ReachsetError("--inflation-grid: values must be finite and >= 0")
+    return sorted(set(float(v) for v in g) | {0.0})
+
+
+def validate(plant, est, *, horizon, thm, joints, vseries, grid, fault_accel):
+    """Held-out validation of identified joints; returns (inflation, {name: validation dict})."""
+    per = {}
+    for name, js in joints.items():
+        s = vseries[name]
+        try:
+            rows, chosen, flagged = validation_grid(plant, thm, est, js, s.y, s.u, segments=s.segments,
+                                                    horizon=horizon, grid=grid)
+        except ReachsetError as e:
+            raise ReachsetError(f"joint {name}: validation: {e}") from None
+        per[name] = (rows, chosen, flagged)
+    inflation = max(c for _, c, _ in per.values())
+    out = {}
+    for name, (rows, chosen, flagged) in per.items():
+        s = vseries[name]
+        for r in rows:
+            t = r.pop("first_violation_tick")
+            r["first_violation_ns"] = int(s.stamps[t]) if t >= 0 else None
+        model_row = next(r for r in rows if r["inflation"] == inflation)   # same grid for all joints
+        try:
+            fault = detection_delay(plant, thm, est, joints[name].xi(inflation), s.y, s.u, segments=s.segments,
+                                    horizon=horizon, accel=fault_accel, dt=plant.dt)
+        except ReachsetError as e:
+            raise ReachsetError(f"joint {name}: validation: {e}") from None
+        fault["onset_ns"] = int(s.stamps[fault["onset_tick"]])
+        fault["kind"] = "constant acceleration added to the measured position: y += accel/2 * t^2"
+        out[name] = {"checked_ticks": rows[0]["checked_ticks"],
+                     "test_cases": rows[0]["test_cases"],
+                     "at_zero": rows[0],
+                     "grid": rows,
+                     "chosen_inflation": chosen,
+                     "flagged": flagged,
+                     "model_inflation": inflation,
+                     "at_model_inflation": {k: model_row[k] for k in
+                                            ("violating_ticks", "violation_rate", "violated_test_cases")},
+                     "fault": fault}
+    return inflation, out
+
+
+def check_options(o: IdentifyOptions):
+    """Refuse options that exclude each other or are out of range (:class:`ReachsetError`,
+    naming the command-line option), before any bag is read."""
+    if o.horizon < 0:
+        raise ReachsetError("--horizon must be >= 0")
+    if o.dt <= 0:
+        raise ReachsetError("--dt must be positive")
+    require_minimum_horizon(lwa4p_joint_plant(dt=o.dt), o.horizon, o.allow_weak_horizon)
+    if not np.isfinite(o.fault_accel):
+        raise ReachsetError("--fault-accel must be finite")
+    if o.inflation_grid is not None and o.validate is None and o.calibrate is None:
+        raise ReachsetError("--inflation-grid needs --validate or --calibrate")
+    if o.calibrate is not None:
+        if o.validate is not None:
+            raise ReachsetError("--calibrate and --validate exclude each other (each calibrates the inflation)")
+        if o.inflation is not None:
+            raise ReachsetError("--calibrate and --inflation exclude each other (--calibrate calibrates the inflation)")
+        if o.calibrate < 2:
+            raise ReachsetError(f"--calibrate needs K >= 2 folds, got {o.calibrate}")
+        if o.method == "corollary1":
+            raise ReachsetError("--calibrate works with --method theorem1 only")
+    if o.calibrate_margin != 0:
+        if o.calibrate is None:
+            raise ReachsetError("--calibrate-margin needs --calibrate")
+        if o.calibrate_margin < 0:
+            raise ReachsetError(f"--calibrate-margin must be >= 0 grid steps, got {o.calibrate_margin}")
+    if o.inflation is not None:
+        if o.validate is not None:
+            raise ReachsetError("--inflation and --validate exclude each other (--validate calibrates the inflation)")
+        if not (np.isfinite(o.inflation) and o.inflation >= 0):
+            raise ReachsetError(f"--inflation must be finite and >= 0, got {o.inflation}")
+    inflation_grid(o.inflation_grid)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Data:
+    """The identification data: the series (single process) or the swept extremes (fleet)."""
+
+    series: dict | None
+    devs: dict | None
+    report: object
+    sha256: tuple | None = None
+
+
+def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
+    """The bags' series, or their sweep on ``fleet`` (merged exactly: the same devs, to the bit)."""
+    if fleet is None:
+        series, report = read_joint_series([Path(b) for b in o.bags], o.joints, o.dt, o.topics, **(o.reader or {}))
+        require_horizon(series, est.history, o.horizon, o.bags)
+        return _Data(series=series, devs=None, report=report)
+    with fleet:
+        swept = fl.extremes(fleet, o.bags, fleet_read, fl.SweepSpec(plant, est, o.horizon, thm))
+    return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256)
+
+
+def _joint_json(sets, dev, settled, horizon):
+    return {"alpha_w": sets.alpha_w.tolist(), "alpha_v": sets.alpha_v.tolist(),
+            "c_w": sets.c_w.tolist(), "c_v": sets.c_v.tolist(),
+            "test_cases": dev.test_cases, "horizon": horizon,
+            "checks": dev.checks, "stable_horizon": settled,
+            "horizon_settled": None if settled is None else bool(settled < horizon),
+            "soundness_inflation": float(sets.soundness_bump),
+            "objective": float(sets.cost)}
+
+
+def _calibrate(o: IdentifyOptions, *, plant, est, thm, series, grid):
+    """``--calibrate K``: per joint the cross-validated inflation (Remark: folds of whole runs)."""
+    def fit(sub):
+        res, _ = identify_series(plant, est, sub, o.horizon, centers=o.centers, alpha_lower=o.alpha_lower, thm=thm,
+                                 cost=o.cost, method=o.method, settle=False)
+        return {n: model_joint_sets(st, dv, o.horizon) for n, (st, dv, _) in res.items()}
+    runs = {n: run_ranges(s.stamps, s.dt) for n, s in series.items()}
+    return cross_validate(plant, est, series, horizon=o.horizon, k=o.calibrate, grid=grid, identify=fit, thm=thm,
+                          runs=runs)
+
+
+def _provenance(o: IdentifyOptions, *, data, grid, calib, inflation):
+    prov = mdl.provenance(o.bags, o.command, data.sha256)
+    prov["input"] = data.report.input
+    if o.validate:
+        prov["validation"] = {"bags": mdl.provenance(o.validate, "")["bags"],
+                              "inflation_grid": grid, "fault_accel": o.fault_accel}
+    if calib is not None:
+        prov["calibration"] = {"folds": o.calibrate, "inflation_grid": grid,
+                               "inflation": {n: c["inflation"] for n, c in calib.items()},
+                               "margin_steps": o.calibrate_margin, "model_inflation": inflation,
+                               "flagged": [n for n, c in calib.items() if c["flagged"]]}
+    return prov
+
+
+def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
+    """Identify a reachset-conformant model from bags (``reachset identify``).
+
+    Parameters
+    ----------
+    options : IdentifyOptions
+    fleet : reachset_ros.fleet.cluster.Fleet, optional
+        A fleet (not yet entered): the Theorem-1 sweep runs one task per bag on it, read as
+        ``fleet_read`` (:class:`~reachset_ros.fleet.ReadSpec`) says; the model is the
+        single-process one to the bit (provenance aside). ``--calibrate`` and Corollary 1 need
+        the whole series: the caller refuses them with a fleet.
+
+    Returns
+    -------
+    IdentifyResult
+        The model file is written to ``options.out`` (when given) once everything is computed.
+    """
+    o = options
+    check_options(o)
+    plant = lwa4p_joint_plant(dt=o.dt)
+    k_min, weak = require_minimum_horizon(plant, o.horizon, o.allow_weak_horizon)
+    grid = inflation_grid(o.inflation_grid)
+    est = Estimator.named(o.estimator, lwa4p_joint_plant(dt=o.dt))
+    if o.initial_state_set and o.method == "corollary1":
+        raise ReachsetError("--initial-state-set works with --method theorem1 only")
+    thm = Theorem1.build(plant, o.horizon, est if o.initial_state_set else None)
+    data = _read(o, plant=plant, est=est, thm=thm, fleet=fleet, fleet_read=fleet_read)
+    vseries = vreport = None
+    if o.validate:
+        vseries, vreport = read_joint_series([Path(b) for b in o.validate], list(data.series or data.devs), o.dt,
+                                             o.topics, **(o.reader or {}))
+        require_horizon(vseries, est.history, o.horizon, o.validate)
+    results, thm = identify_series(plant, est, data.series, o.horizon, centers=o.centers, alpha_lower=o.alpha_lower,
+                                   thm=thm, cost=o.cost, method=o.method, devs=data.devs)
+    joints = {n: model_joint_sets(sets, dev, o.horizon) for n, (sets, dev, _) in results.items()}
+    js = {n: _joint_json(sets, dev, settled, o.horizon) for n, (sets, dev, settled) in results.items()}
+    inflation = 0.0 if o.inflation is None else float(o.inflation)
+    calib = calibrated = None
+    if o.calibrate is not None:
+        calib = _calibrate(o, plant=plant, est=est, thm=thm, series=data.series, grid=grid)
+        for name, c in calib.items():
+            js[name]["inflation"] = c["inflation"]
+            js[name]["calibration"] = c
+        inflation = calibrated = max(c["inflation"] for c in calib.values())
+        if o.calibrate_margin:
+            inflation = calibrate_margin(calibrated, grid, o.calibrate_margin)
+    if vseries is not None:
+        inflation, val = validate(plant, est, horizon=o.horizon, thm=thm, joints=joints, vseries=vseries, grid=grid,
+                                  fault_accel=o.fault_accel)
+        for name, v in val.items():
+            js[name]["validation"] = v
+    model = None
+    if o.out is not None:
+        prov = _provenance(o, data=data, grid=grid, calib=calib, inflation=inflation)
+        m = mdl.ConformanceModel(plant=plant, plant_spec={"kind": "lwa4p_joint", "dt": o.dt}, estimator=est,
+                                 horizon=o.horizon, joints=joints, inflation=inflation, provenance=prov,
+                                 minimum_horizon=k_min, horizon_below_minimum=weak,
+                                 initial_state_set=bool(o.initial_state_set))
+        mdl.save(m, o.out)
+        model = str(o.out)
+    return IdentifyResult(inflation=inflation, joints=js, model_sets=joints, data=data.report.as_dict(), cost=o.cost,
+                          method=o.method, horizon=o.horizon, minimum_horizon=k_min, horizon_below_minimum=weak,
+                          initial_state_set=bool(o.initial_state_set), calibrate=o.calibrate,
+                          calibrated_inflation=calibrated, calibration=calib,
+                          validation_data=None if vseries is None else vreport.as_dict(), model=model)

@@ -1,0 +1,105 @@
+"""Controller synthesis and re-identification from bags (paper eq. 10; Sec. III-D, step 3):
+the workflow of ``reachset synthesize`` and of the synthesis node's worker.
+
+:func:`synthesize` plans the synthesis (:func:`reachset_ros.synthesis.pipeline.plan`), reads
+the bags in this process or sweeps them on a fleet (:mod:`reachset_ros.fleet`: the choice is
+made here, the synthesis package never imports the fleet), solves
+(:func:`reachset_ros.synthesis.pipeline.solve`), then writes the optional figures and the model
+file, and returns a :class:`SynthesisResult` whose :meth:`~SynthesisResult.to_json` is the
+command's ``--json`` object (without ``seconds``). Mode ``reidentify`` (the controller of
+``options.model`` kept, only the sets re-identified) is the same workflow with
+``SynthesisOptions(mode="reidentify", model=...)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from .. import fleet as fl
+from ..bags import read_estimates
+from ..conformance import model as mdl
+from ..synthesis.pipeline import BagData, BagSynthesis, SynthesisOptions, plan, read_bags, solve
+
+__all__ = ["SynthesisOptions", "SynthesisResult", "synthesize", "sweep_on_fleet"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SynthesisResult:
+    """What :func:`synthesize` computed and wrote.
+
+    Attributes
+    ----------
+    synthesis : BagSynthesis
+        The per-joint results and problems, the model (:meth:`BagSynthesis.model`).
+    model : str or None
+        The model file written.
+    plots : list of str or None
+        The figures written (None: none asked for).
+    """
+
+    synthesis: BagSynthesis
+    model: str | None = None
+    plots: list | None = None
+
+    def to_json(self):
+        """The ``reachset synthesize --json`` object, without ``seconds``."""
+        out = self.synthesis.as_dict()
+        if self.plots is not None:
+            out["plots"] = list(self.plots)
+        if self.model is not None:
+            out["model"] = self.model
+        return out
+
+
+def sweep_on_fleet(pl, *, fleet, fleet_read):
+    """The bags' :class:`~reachset_ros.synthesis.pipeline.BagData` from an open ``fleet``: one
+    task per bag, merged exactly (the same data, to the bit, as :func:`read_bags`), and a
+    checker that batch-checks a non-conformant xi on the fleet."""
+    read = replace(fleet_read, joints=None if pl.names is None else tuple(pl.names), dt=pl.plant.dt)
+    sweep = fl.SweepSpec(pl.plant, pl.estimator, pl.horizon, pl.thm)
+    swept = fl.extremes(fleet, pl.bags, read, sweep, references=True, loops=pl.loops)
+    return BagData(names=list(swept.devs), series=None, devs=swept.devs, report=swept.report,
+                   references=swept.references, loops=swept.loops, sha256=swept.sha256,
+                   checker=fl.Checker(fleet, pl.bags, read, sweep))
+
+
+def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command="", fleet=None, fleet_read=None):
+    """Synthesise (or re-identify) from ``bags`` (``reachset synthesize``).
+
+    Parameters
+    ----------
+    bags : sequence of path
+    options : SynthesisOptions
+    out : path, optional
+        Write the model file (sets and gains) here, once everything is computed.
+    plot : path, optional
+        Write PNG figures (R_e, R_u, conformance) into this directory (needs the series in this
+        process: not with a fleet).
+    command : str
+        The command line recorded in the model's provenance.
+    fleet : reachset_ros.fleet.cluster.Fleet, optional
+        A fleet (not yet entered): the sweep runs one task per bag on it, read as
+        ``fleet_read`` (:class:`~reachset_ros.fleet.ReadSpec`; its joints and dt are set
+        here) says; the result is the single-process one to the bit (provenance aside).
+
+    Returns
+    -------
+    SynthesisResult
+    """
+    pl = plan(bags, options)
+    if fleet is None:
+        bs = solve(pl, read_bags(pl))
+    else:
+        with fleet:                 # open while the problems' checker may still need it
+            bs = solve(pl, sweep_on_fleet(pl, fleet=fleet, fleet_read=fleet_read))
+    plots = None
+    if plot:
+        from .. import plots as pp  # heavy optional dependency: matplotlib, only for --plot
+        plots = []
+        est_rows = read_estimates(list(bs.bags), list(bs.results))
+        for pb in bs.problems:
+            plots += [str(p) for p in pp.plot_joint(plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
+    model = None
+    if out is not None:
+        mdl.save(bs.model(command), out)
+        model = str(out)
+    return SynthesisResult(synthesis=bs, model=model, plots=plots)
