@@ -100,3 +100,15 @@ def test_no_upward_imports(package, forbidden):
     for f in sorted((PKG / package).glob("*.py")):
         bad = _imports(f) & forbidden
         assert not bad, f"{f.name} imports {bad}"
+
+
+def test_a_workflow_in_a_low_priority_worker_returns_the_same_typed_result(bag):
+    """The demo and the campaign identify in a worker process (workflows.worker): the result
+    is the workflow's own object, equal to the in-process one, and a bad input raises the
+    same one-line error in the caller."""
+    from reachset_ros.errors import ReachsetError
+    from reachset_ros.workflows.worker import run_in_worker
+    opts = IdentifyOptions(bags=(bag,), horizon=20)
+    assert run_in_worker(identify, opts).to_json() == identify(opts).to_json()
+    with pytest.raises(ReachsetError, match="nowhere"):
+        run_in_worker(identify, IdentifyOptions(bags=(bag.parent / "nowhere",), horizon=20))

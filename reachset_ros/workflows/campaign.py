@@ -22,7 +22,6 @@ re-score).
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -41,8 +40,11 @@ from ..nodes.common import SAFE_STOP_QOS, TICK_QOS, stamp_ns
 from ..robot.lwa4p import default_nominal_path
 from ..sim import campaign as cp
 from ..sim.simulator import DT as SIM_DT
-from .commander import CORE_TOPICS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, open_commander, run_cli
+from ..errors import ReachsetError
+from .commander import CORE_TOPICS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, open_commander
+from .identify import IdentifyOptions, identify
 from .demo import INITIAL_GAINS
+from .worker import run_in_worker
 
 #: ``Outcome.note`` of a fault that must stop when the runner saw no stop in its window
 #: (:func:`bag_stops` looks in the bag for one it did not wait for)
@@ -213,14 +215,18 @@ def suite_parameters(*, workdir, seed, realtime_priority, monitor_lockstep_ticks
 
 
 def identify_model(*, bags, folds, calibrate_margin, out):
-    """The JSON of ``reachset identify BAGS --calibrate FOLDS --calibrate-margin M --out OUT
-    --json``, run as a CLI subprocess at low priority. The one place the campaign runs the
-    identification (the switch to the workflow library is here)."""
-    code, stdout, err = run_cli(["identify", *map(str, bags), "--calibrate", str(folds),
-                                 "--calibrate-margin", str(calibrate_margin), "--out", str(out), "--json"])
-    if code != 0:
-        raise RuntimeError("identify: " + ((err.strip().splitlines() or ["?"])[-1]))
-    return json.loads(stdout)
+    """The monitor's model from the training recordings: the identification workflow of
+    ``reachset identify BAGS --calibrate FOLDS --calibrate-margin M --out OUT`` in a
+    low-priority worker process (it must not starve the running suite); returns its ``--json``
+    dict."""
+    command = " ".join(["reachset identify", *map(str, bags), f"--calibrate {folds}",
+                        f"--calibrate-margin {calibrate_margin}", f"--out {out}"])
+    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=folds, calibrate_margin=calibrate_margin,
+                           out=Path(out), command=command)
+    try:
+        return run_in_worker(identify, opts).to_json()
+    except ReachsetError as e:
+        raise RuntimeError(f"identify: {e}") from e
 
 
 class _Campaign:

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -305,12 +303,3 @@ def open_commander(*, workdir, stop=None, node_name=NODE_NAME):
     finally:
         if own:
             rclpy.try_shutdown()
-
-
-def run_cli(args):
-    """``python -m reachset_ros.cli ARGS`` at low priority (as the synthesis node's child: it
-    must not starve the running nodes); returns ``(returncode, stdout, stderr)``."""
-    cmd = [sys.executable, "-m", "reachset_ros.cli", *map(str, args)]
-    p = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    out, err = p.communicate()
-    return p.returncode, out, err

@@ -14,18 +14,20 @@ phase's real-time factor (simulated / wall time) is reported.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
 from .. import defaults
 from ..conformance import model as mdl
+from ..errors import ReachsetError
 from ..nodes.common import stamp_ns
 from ..robot.dynamics import U_REF
 from ..robot.lwa4p import default_nominal_path
 from ..synthesis.config import config_path, load_config
 from ..systems.gains import certified_inflation
-from .commander import CORE_TOPICS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, open_commander, run_cli, wall_limit
+from .commander import CORE_TOPICS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, open_commander, wall_limit
+from .identify import IdentifyOptions, identify
+from .worker import run_in_worker
 
 __all__ = ["CORE_TOPICS", "INITIAL_GAINS", "JOINTS", "LOCKSTEP_TIMEOUT", "MONITOR_TOPICS", "calibrate_inflation",
            "run_demo", "wall_limit"]
@@ -233,29 +235,22 @@ def synthesis_arguments():
 
 
 def calibrate_inflation(*, bags, workdir):
-    """The monitor's inflation from the training recordings alone: ``reachset identify BAGS
-    --calibrate 2 --initial-state-set --json`` (the synthesis' Theorem-1 rows; each recording a
-    fold: the sets identified on one must hold on the other,
-    :func:`reachset_ros.conformance.calibration.cross_validate`). Returns ``(inflation,
-    details)``; a flagged joint (no grid value held) is reported, and its largest grid value
-    is used."""
-    args = ["identify", *map(str, bags), "--calibrate", "2", "--initial-state-set", "--json"]
-    r = identify_json(args=args, log_file=Path(workdir) / "calibration.log")
+    """The monitor's inflation from the training recordings alone: the identification workflow
+    with ``calibrate=2`` and ``initial_state_set`` (``reachset identify BAGS --calibrate 2
+    --initial-state-set``; the synthesis' Theorem-1 rows; each recording a fold: the sets
+    identified on one must hold on the other,
+    :func:`reachset_ros.conformance.calibration.cross_validate`), in a low-priority worker
+    process. Returns ``(inflation, details)``; a flagged joint (no grid value held) is
+    reported, and its largest grid value is used."""
+    command = " ".join(["reachset identify", *map(str, bags), "--calibrate 2 --initial-state-set"])
+    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=2, initial_state_set=True, command=command)
+    try:
+        r = run_in_worker(identify, opts).to_json()
+    except ReachsetError as e:
+        raise RuntimeError(f"inflation calibration failed: {e}") from e
     per = {n: float(j["inflation"]) for n, j in r["joints"].items()}
     flagged = [n for n, j in r["joints"].items() if j["calibration"].get("flagged")]
-    return float(r["inflation"]), {"folds": 2, "command": " ".join(["reachset_ros.cli", *args]),
-                                   "per_joint": per, "flagged": flagged}
-
-
-def identify_json(*, args, log_file):
-    """The JSON of ``reachset identify ARGS`` (``args`` starts with ``identify``), run as a CLI
-    subprocess at low priority; its stderr goes to ``log_file``. The one place the demo runs
-    the identification (the switch to the workflow library is here)."""
-    code, out, err = run_cli(args)
-    log_file.write_text(err)
-    if code != 0:
-        raise RuntimeError("inflation calibration failed: " + ((err.strip().splitlines() or ["?"])[-1]))
-    return json.loads(out)
+    return float(r["inflation"]), {"folds": 2, "command": command, "per_joint": per, "flagged": flagged}
 
 
 def _result_dict(res):
