@@ -116,7 +116,7 @@ def test_calibrate_margin_steps_along_the_grid():
 def test_a_single_recording_is_split_into_blocks_for_the_folds(lwa4p_dir):
     """With fewer runs than folds the longest run is halved until there are K blocks; the
     segments are cut at the block boundaries (a test case is dropped there, never split)."""
-    from reachset_ros.bags.series import JointSeries
+    from reachset_ros.bags import JointSeries
     from reachset_ros.conformance.calibration import segment_folds
     st = 10**18 + 4_000_000 * np.arange(1000)
     s = JointSeries("j", st, np.zeros(1000), np.zeros(1000), ((0, 1000),), 0.004)

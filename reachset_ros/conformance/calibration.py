@@ -38,7 +38,7 @@ __all__ = ["run_ranges", "blocks", "segment_folds", "cross_validate"]
 def run_ranges(stamps, dt):
     """Index ranges ``(start, stop)`` of the runs of sorted stamps: consecutive stamps within
     ``[0.5, 1.5] dt`` of each other (every sample counted, valid or not)."""
-    from ..bags.series import segments_of     # the one definition of "consecutive"
+    from ..bags import segments_of     # the one definition of "consecutive"
     return segments_of(stamps, np.ones(len(stamps), dtype=bool), dt)
 
 

@@ -506,7 +506,7 @@ def bag_stops(outcomes):
     For re-scoring a run whose runner stopped waiting early (the wall-time guard of the seventh
     long run, counted from the event's start instead of the window's)."""
     from ..bags.messages import SAFE_STOP_TOPIC
-    from ..bags.series import read_messages
+    from ..bags import read_messages
     for bag, group in _by_bag(o for o in outcomes if o.event.expect == "stop" and not o.stops and o.bag
                               and o.note == NO_STOP_NOTE).items():
         active = sorted((stamp_ns(m.header.stamp), m.kind, m.reason)
@@ -527,7 +527,7 @@ def bag_brakes(outcomes):
     controller commanded with the stop); only where :func:`~reachset_ros.sim.campaign.controller_acts`.
     Unchanged where the bag has no such command."""
     from ..bags.messages import BRAKE_TOPIC
-    from ..bags.series import read_messages
+    from ..bags import read_messages
     for bag, group in _by_bag(o for o in outcomes if o.stops and o.bag and cp.controller_acts(o.event)).items():
         since = sorted({int(m.braking_since_ns) for _, _, m in read_messages([bag], [BRAKE_TOPIC])
                         if m.braking_since_ns})
@@ -547,7 +547,7 @@ def link_onsets(outcomes):
     first affected measurement, as ``/sim/fault_onset`` is for the simulator's faults. A status
     the recorder lost makes the onset earlier, so the latency longer (conservative). Leaves
     ``observable_ns`` unset when the bag shows no loss before the stop."""
-    from ..bags.series import read_messages
+    from ..bags import read_messages
     for bag, group in _by_bag(o for o in outcomes
                               if o.event.kind == "link" and o.event.fault == "loss" and o.stops and o.bag).items():
         js, status = set(), set()
@@ -563,7 +563,7 @@ def judge_stops(outcomes):
     """Each stop's effect from its block's bag (:func:`reachset_ros.sim.campaign.judge_rest`):
     the recorded ``/joint_states`` from the stop's stamp to the reset. A killed simulator has
     no arm left to judge (the restarted one starts at rest): not judged."""
-    from ..bags.series import read_messages
+    from ..bags import read_messages
     for bag, group in _by_bag(o for o in outcomes if o.stops and o.reset_ns
                               and not (o.event.kind == "kill" and o.event.target == "sim_node")).items():
         t, q, qd, names = [], [], [], None

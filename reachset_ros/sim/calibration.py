@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..bags.series import concat_series
+from ..bags import concat_series
 
 from ..conformance.estimators import Estimator
 from ..conformance.identify import identify_sets
