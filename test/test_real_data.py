@@ -139,7 +139,7 @@ def test_calibrated_simulator_gives_sets_like_the_real_robots_on_held_out_runs(l
     driven along the 25 held-out runs' own trajectories gives sets (Theorem 1, k* = 125, fd)
     within a factor 1.5 of those identified from the real held-out runs, on every joint."""
     from reachset_ros import bags
-    from reachset_ros.sim import calibration as cal
+    from reachset_ros.sim import real_runs as cal
     from reachset_ros.sim.simulator import SimConfig
     runs = lwa4p.read_runs(lwa4p_dir, "heldout")
     lwa4p.import_runs(lwa4p_dir, [r.index for r in runs], tmp_path / "real")

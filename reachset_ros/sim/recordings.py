@@ -2,12 +2,13 @@
 
 Two sources: independent joints of the per-joint plant of the paper's Appendix A with bounded
 disturbances and a smooth model error along a sum-of-sines reference (:class:`Scenario`,
-:func:`simulate_recordings`, through :func:`reachset_ros.synthesis.reference_error.simulate_closed_loop`),
+:func:`simulate_recordings`, through :func:`reachset_ros.systems.reference_loop.simulate_closed_loop`),
 and the project's simulated arm (the LWA-4P, or any URDF's) driven by the nodes' control law
 (:func:`simulate_arm_recordings`). Either becomes synthesis input directly
 (:func:`recordings_series`) or a rosbag2 with the topics of INTERFACES.md (:func:`write_recordings`).
 
-May import :mod:`reachset_ros.synthesis`; the synthesis never imports this module.
+Imports :mod:`reachset_ros.systems` for the loop, never :mod:`reachset_ros.synthesis`; the
+synthesis never imports this module.
 """
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ from ..bags import JointSeries
 from ..bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
 from ..bags.references import Reference
 from ..errors import ReachsetError
-from ..synthesis.config import components_from_gains
-from ..synthesis.reference_error import reference_state, simulate_closed_loop
 from ..systems.closedloop import closed_loop_tick
+from ..systems.gains import Gains
 from ..systems.plant import lwa4p_joint_plant
+from ..systems.reference_loop import reference_state, simulate_closed_loop
 from . import reference as refm
 from . import simulator as simm
 
@@ -106,7 +107,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
         Everything (references, disturbances) is a deterministic function of the seed and the
         joint's position in ``joints``.
     gains : dict, optional
-        ``{joint: gains}`` (model-file gains, :func:`reachset_ros.synthesis.config.components_from_gains`)
+        ``{joint: gains}`` (model-file gains, :meth:`reachset_ros.systems.gains.Gains.from_model`)
         or one gains dict for all joints; default HG (15, 30, eps 0.01) + static feedback (omega 20,
         zeta 1).
     scenarios : dict, optional
@@ -122,7 +123,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
     for i, name in enumerate(joints):
         g = gains.get(name, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
             gains or DEFAULT_GAINS)
-        obs, ctrl = components_from_gains(g, dt)
+        obs, ctrl = Gains.from_model(g).build(dt)
         sc = (scenarios or {}).get(name) or Scenario.for_joint(i)
         rng = np.random.default_rng([int(seed), i])
         q_d, qd_d, qdd_d = _reference(ticks, dt, rng, sc)
@@ -260,7 +261,7 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     for j, nm in enumerate(names):
         g = gains.get(nm, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
             gains or DEFAULT_GAINS)
-        obs, ctrl = components_from_gains(g, dt)
+        obs, ctrl = Gains.from_model(g).build(dt)
         xr0 = reference_state(obs.estimate_names, Qd[:1, j], QDd[:1, j], QDDd[:1, j])[0]
         comps.append((obs, ctrl))
         states.append(obs.initial_state(xr0, [m.q_measured[j]], [QDDd[0, j]]))
