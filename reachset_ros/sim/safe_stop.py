@@ -141,6 +141,7 @@ def simulate_safe_stop(fault, before=2.0, stop_delay=0.02, after=3.0, policy=Non
         # else: no estimate, no command: the previous command is held (tau unchanged)
         rec["brakes"][k] = arm.brakes
         m = arm.step(tau)
-    return StopRun(names, stamps, rec["q"], rec["qd"], rec["q_true"], rec["qd_true"], rec["brakes"].astype(bool),
-                   fault_ns if fault_ns is not None else stop_from, stop_from, dict(arm.counters),
-                   tuple(stop.reasons) if stop is not None else ())
+    return StopRun(names=names, stamps=stamps, q=rec["q"], qd=rec["qd"], q_true=rec["q_true"], qd_true=rec["qd_true"],
+                   brakes=rec["brakes"].astype(bool), fault_ns=fault_ns if fault_ns is not None else stop_from,
+                   stop_ns=stop_from, counters=dict(arm.counters),
+                   reasons=tuple(stop.reasons) if stop is not None else ())
