@@ -10,6 +10,11 @@ single-process model to the bit (provenance aside) for any split of the bags.
 * :mod:`.cluster`: :class:`~.cluster.Fleet`, the Dask client (imported only with the options).
 
 :func:`extremes` and :func:`check` are the two client-side entry points the commands use.
+
+May import: :mod:`reachset_ros.bags`, :mod:`reachset_ros.conformance`,
+:mod:`reachset_ros.synthesis` (a re-identification's recorded loop, per bag),
+:mod:`reachset_ros.robot` (``--input effort``) and :mod:`reachset_ros.errors`; never ``sim``
+or the ROS layers. The synthesis never imports this package.
 """
 from .tasks import (BagCheck, BagExtremes, BagHeader, FleetSweep, ReadSpec, SweepSpec, bag_check, bag_extremes, bag_header,
                     merge_checks, merge_extremes, require_agreement)

@@ -8,6 +8,10 @@ parameters), :mod:`~reachset_ros.nodes.demo_driver` (the conductor of ``reachset
 :mod:`~reachset_ros.nodes.selftest` (the DDS self-test). docs/nodes.md documents each
 node's interface.
 
-May import: every pure-core subpackage of reachset_ros and :mod:`reachset_ros.launch`;
-nothing in the core imports this package.
+May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic`,
+:mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`, :mod:`reachset_ros.robot`,
+:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.synthesis`,
+:mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`) and the processes
+(:mod:`reachset_ros.domain`, :mod:`reachset_ros.params_file`, :mod:`reachset_ros.launch`);
+not the workflows, commands or the command line. Nothing in the core imports this package.
 """

@@ -23,6 +23,6 @@ limits, effort limits, brakes and the reference box come from the model
 
 May import: :mod:`reachset_ros.robot`, :mod:`reachset_ros.systems` (the control law and the
 closed loop driven by references), :mod:`reachset_ros.conformance` (``real_runs`` identifies
-sets), :mod:`reachset_ros.bags` (to write and read recordings), :mod:`reachset_ros.sets` and
-:mod:`reachset_ros.errors`; never :mod:`reachset_ros.synthesis` or :mod:`reachset_ros.fleet`.
+sets), :mod:`reachset_ros.bags` (to write and read recordings) and :mod:`reachset_ros.errors`;
+never ``synthesis`` or ``fleet``.
 """

@@ -39,9 +39,9 @@ Simulated recordings for tests, benchmarks and the docs live in
 :mod:`reachset_ros.bags.references`.
 
 May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
-:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.errors` and
-:mod:`reachset_ros.atomic`; never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure
-numpy/scipy (plus rosbags to read the optional reference/estimate topics); no ROS import.
+:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags` and :mod:`reachset_ros.errors`;
+never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read
+the optional reference/estimate topics); no ROS import.
 """
 from .config import (DEFAULT_CONFIG, PARAMS, PENALTY, U_MARGIN, SearchSpace, components_from_gains,
                      config_path, load_config, u_max_for)
