@@ -67,7 +67,7 @@ def baseline_read(path):
     """The reader before the fast path: rosbags AnyReader + deserialize_cdr per message."""
     from rosbags.highlevel import AnyReader
     ts = bags.typestore()
-    cols = {t: bags.series._TopicColumns() for t in (bags.JOINT_STATES, bags.PLANT_INPUT)}
+    cols = {t: bags.topics._TopicColumns() for t in (bags.JOINT_STATES, bags.PLANT_INPUT)}
     with AnyReader([Path(path)], default_typestore=ts) as reader:
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):

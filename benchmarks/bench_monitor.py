@@ -4,7 +4,7 @@ Run: .venv/bin/python benchmarks/bench_monitor.py [--ticks 30000]
 Data follow the per-joint plant with bounded disturbances; the model is identified on
 them, so every tick checks k*+1 test cases per joint. Two timings: ``Monitor.tick`` alone,
 and the whole per-tick check of the monitor node's core (the tick plus the coverage
-accounting of :class:`~reachset_ros.conformance.monitor.CoverageWatch`: how far the test
+accounting of :class:`~reachset_ros.conformance.watches.CoverageWatch`: how far the test
 cases reached, issue 14.1), and the monitor node's whole per-tick work without ROS
 (``MonitorCore.add_y`` + ``add_u``: name mapping, pairing, gap counting, the tick, coverage),
 and the same with ``input_source: effort`` (``MonitorCore.add_joint_state``: u_p from the
@@ -18,8 +18,9 @@ import numpy as np
 from reachset_ros import conformance as cf
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.conformance.model import ConformanceModel, JointSets
-from reachset_ros.conformance.monitor import CoverageWatch, Monitor, MonitorModel, TickEvent
-from reachset_ros.nodes.monitor_node import MonitorCore
+from reachset_ros.conformance.monitor import Monitor, MonitorModel
+from reachset_ros.conformance.monitor_core import MonitorCore
+from reachset_ros.conformance.watches import CoverageWatch, TickEvent
 from reachset_ros.systems.plant import lwa4p_joint_plant
 
 

@@ -7,7 +7,7 @@ The real runs' sets (Theorem 1, min ‖W‖ + ‖V‖, estimator fd, k* = ``--ho
 identified from the runs imported with the nominal model (as ``reachset import-lwa4p`` does);
 the simulated arm (nominal model = config/lwa4p_nominal.yaml, truth = nominal perturbed by a
 ModelError, measurement noise) follows the same runs' trajectories under the project's
-control law (:mod:`reachset_ros.sim.calibration`), and its sets are identified the same
+control law (:mod:`reachset_ros.sim.real_runs`), and its sets are identified the same
 way. Over a grid of model-error sizes and position-noise levels the script prints, per
 candidate, the per-joint ratios sim/real of alpha_W (largest component) and alpha_V, and
 the candidate whose worst ratio (max over joints of max(r, 1/r)) is smallest; goal: within
@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 from reachset_ros import bags  # noqa: E402
 from reachset_ros.robot import ModelError, lwa4p  # noqa: E402
-from reachset_ros.sim import calibration as cal  # noqa: E402
+from reachset_ros.sim import real_runs as cal  # noqa: E402
 from reachset_ros.sim.simulator import SimConfig  # noqa: E402
 
 

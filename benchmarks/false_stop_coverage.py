@@ -27,7 +27,7 @@ import numpy as np
 
 from reachset_ros.bags.messages import header_stamp_ns
 from reachset_ros.bags.references import read_references
-from reachset_ros.bags.series import read_messages, read_topic_rows
+from reachset_ros.bags import read_messages, read_topic_rows
 
 BEFORE_NS = 2_000_000_000
 #: "fast" for the tracking-error comparison: |qd_d| above this share of the class' 0.7 rad/s

@@ -8,7 +8,7 @@ Usage::
 ``WORK`` is a fault campaign's work directory (``campaign.json`` and the ``block*`` bags). The
 stamps of ``/conformance/status`` are the ticks the monitor processed (one status per tick),
 so its gaps are the monitor's. A
-:class:`~reachset_ros.conformance.monitor.CoverageWatch` with only the lossy-link rule
+:class:`~reachset_ros.conformance.watches.CoverageWatch` with only the lossy-link rule
 (``gap_window`` N, default 25 ticks; the model's dt 4 ms, missing-data limit 125 ticks as in
 the campaign) is fed every block's stamps; each coverage fault it raises is attributed to the
 event in progress (the last event whose fault stamp precedes it, or the fault-free stretch
@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reachset_ros.bags import STATUS_TOPIC, header_stamp_ns, read_messages  # noqa: E402
-from reachset_ros.conformance.monitor import CoverageWatch  # noqa: E402
+from reachset_ros.conformance.watches import CoverageWatch  # noqa: E402
 
 DT_NS = 4_000_000
 

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reachset_ros.bags import read_joint_series, read_references  # noqa: E402
-from reachset_ros.conformance.monitor import StuckSensorWatch  # noqa: E402
+from reachset_ros.conformance.watches import StuckSensorWatch  # noqa: E402
 
 THRESHOLDS = (0.0, 0.01, 0.02, 0.05)
 DT_NS = 4_000_000

@@ -20,7 +20,7 @@ import numpy as np
 
 from .bags.messages import DIAGNOSTICS_TOPIC, ESTIMATE_TOPIC, REFERENCE_TOPIC, STATUS_TOPIC, header_stamp_ns
 from .bags.references import read_references
-from .bags.series import read_messages
+from .bags import read_messages
 from .conformance import model as mdl
 from .conformance.theorem1 import xi_of
 from .synthesis.config import components_from_gains

@@ -120,7 +120,7 @@ def test_decoder_groups_only_identical_layouts():
 def reference_columns(path, topics=(bags.JOINT_STATES, bags.PLANT_INPUT), field=None):
     """The reader before the fast path: rosbags' AnyReader and deserialize_cdr, message by message
     (``field``: read this array instead of the type's value field)."""
-    cols = {t: bags.series._TopicColumns() for t in topics}
+    cols = {t: bags.topics._TopicColumns() for t in topics}
     with AnyReader([Path(path)], default_typestore=TS) as reader:
         conns = [c for c in reader.connections if c.topic in cols]
         for conn, _t, raw in reader.messages(connections=conns):
@@ -213,12 +213,12 @@ def write_mcap_lib(path, stream, compression, index, repeat=True):
 def rosbags_reads(monkeypatch):
     """Counts bags read message by message through rosbags (not by the MCAP fast path)."""
     calls = []
-    real = bags.series._read_rosbags
+    real = bags.topics._read_rosbags
 
     def spy(*a, **kw):
         calls.append(a)
         return real(*a, **kw)
-    monkeypatch.setattr(bags.series, "_read_rosbags", spy)
+    monkeypatch.setattr(bags.topics, "_read_rosbags", spy)
     return calls
 
 
@@ -276,7 +276,7 @@ def test_several_arrays_of_a_topic_in_one_pass_equal_rosbags(tmp_path, kind):
     path = tmp_path / "b"
     write_layout(path, messy_stream(), kind)
     fields = ("position", "velocity", "effort")
-    got = bags.series.read_fields([path], {f: (bags.JOINT_STATES, f) for f in fields})
+    got = bags.read_fields([path], {f: (bags.JOINT_STATES, f) for f in fields})
     for f in fields:
         want = reference_columns(path, (bags.JOINT_STATES,), field=f)
         assert_columns_equal({bags.JOINT_STATES: got[f]}, want)

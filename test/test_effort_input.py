@@ -295,8 +295,8 @@ def test_monitor_core_with_effort_input_faults_on_bad_effort(lwa_bags, tmp_path)
     non-finite u_p (``invalid_sample``), one lacking a joint of the robot model a
     ``name_mismatch``; good messages are checked with the u_p of robot.effort.plant_inputs."""
     from reachset_ros.conformance import model as mdl
-    from reachset_ros.conformance.monitor import FaultEvent, TickEvent
-    from reachset_ros.nodes.monitor_node import MonitorCore
+    from reachset_ros.conformance.watches import FaultEvent, TickEvent
+    from reachset_ros.conformance.monitor_core import MonitorCore
     d, runs, model = lwa_bags
     eff = ["--input", "effort", "--robot", DEFAULT_URDF, "--nominal", NOMINAL]
     cli("identify", d / "plain", "--horizon", 10, "--out", tmp_path / "m.yaml", *eff)

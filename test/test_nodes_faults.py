@@ -23,10 +23,10 @@ from reachset_msgs.msg import JointEstimate, JointReference, SafeStop
 from helpers import HORIZON, JOINTS, Bus, stream, write_model
 from reachset_ros import launch
 from reachset_ros.conformance import model as mdl
-from reachset_ros.conformance.monitor import FaultEvent, TickEvent
+from reachset_ros.conformance.watches import FaultEvent, TickEvent
 from reachset_ros.errors import ReachsetError
 from reachset_ros.nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, stamp_ns, to_stamp
-from reachset_ros.nodes.monitor_node import MonitorCore
+from reachset_ros.conformance.monitor_core import MonitorCore
 
 DT_NS = 4_000_000
 _next = [10**18]

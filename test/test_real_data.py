@@ -116,7 +116,7 @@ def test_calibrate_margin_steps_along_the_grid():
 def test_a_single_recording_is_split_into_blocks_for_the_folds(lwa4p_dir):
     """With fewer runs than folds the longest run is halved until there are K blocks; the
     segments are cut at the block boundaries (a test case is dropped there, never split)."""
-    from reachset_ros.bags.series import JointSeries
+    from reachset_ros.bags import JointSeries
     from reachset_ros.conformance.calibration import segment_folds
     from reachset_ros.workflows.identify import run_ranges
     st = 10**18 + 4_000_000 * np.arange(1000)
@@ -140,7 +140,7 @@ def test_calibrated_simulator_gives_sets_like_the_real_robots_on_held_out_runs(l
     driven along the 25 held-out runs' own trajectories gives sets (Theorem 1, k* = 125, fd)
     within a factor 1.5 of those identified from the real held-out runs, on every joint."""
     from reachset_ros import bags
-    from reachset_ros.sim import calibration as cal
+    from reachset_ros.sim import real_runs as cal
     from reachset_ros.sim.simulator import SimConfig
     runs = lwa4p.read_runs(lwa4p_dir, "heldout")
     lwa4p.import_runs(lwa4p_dir, [r.index for r in runs], tmp_path / "real")

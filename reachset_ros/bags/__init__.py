@@ -17,9 +17,15 @@ messages
 writer
     :class:`BagWriter`: atomic writing with rosbags.
 series
-    The reader, the one entry point for reading bags: :func:`read_joint_series` (per-joint
-    paired y, u_p series and segments), :func:`read_topics`, :func:`read_topic_rows`,
-    :func:`read_messages`.
+    The reader's entry point for identification and checking: :func:`read_joint_series`
+    (per-joint paired y, u_p series and their segments, :func:`segments_of`), the sampling
+    period a bag must have (:func:`check_period`), several bags as one
+    (:func:`concat_series`, :func:`merge_reports`).
+topics
+    Streamed reading of topics into per-joint columns (:func:`read_topics`,
+    :func:`read_fields`) and what a bag path may be (:func:`check_bag_path`).
+decoded
+    Messages decoded one by one: :func:`read_messages` (small bags), :func:`read_topic_rows`.
 cdr
     Fast CDR decoding of ``JointState``/``PlantInput`` payloads with numpy (equal to
     rosbags' ``deserialize_cdr`` message by message, ``test/test_bags.py``).
@@ -28,8 +34,11 @@ mcap
 references
     References and observer estimates of a bag (:func:`read_references`).
 
-Timings: ``docs/performance.md``. From the rest of ``reachset_ros`` this subpackage imports
-only :mod:`reachset_ros.errors`.
+Timings: ``docs/performance.md``. Every public name is importable from this package
+(``from reachset_ros.bags import read_joint_series``); code outside the package imports from it
+rather than from the submodules.
+
+May import: :mod:`reachset_ros.errors` only.
 """
 from .cdr import FAST_TYPES, CdrError, cdr_layout, decode_payloads, decode_rows
 from .messages import (
@@ -56,16 +65,20 @@ from .messages import (
     stamp_msg,
     typestore,
 )
+from .decoded import read_messages, read_topic_rows
 from .references import Reference, read_estimates, read_references
 from .series import (
+    PERIOD_TOLERANCE,
     JointSeries,
     ReadReport,
+    check_period,
+    concat_series,
+    measured_period,
+    merge_reports,
     read_joint_series,
-    read_messages,
-    read_topic_rows,
-    read_topics,
     segments_of,
 )
+from .topics import VALUE_FIELDS, check_bag_path, read_fields, read_topics
 from .writer import BagWriter
 
 __all__ = [
@@ -79,8 +92,9 @@ __all__ = [
     # writing
     "BagWriter",
     # reading
-    "JointSeries", "ReadReport", "read_joint_series", "read_topics", "read_topic_rows",
-    "read_messages", "segments_of",
+    "JointSeries", "ReadReport", "read_joint_series", "read_topics", "read_fields", "read_topic_rows",
+    "read_messages", "segments_of", "measured_period", "check_period", "PERIOD_TOLERANCE",
+    "merge_reports", "concat_series", "check_bag_path", "VALUE_FIELDS",
     "Reference", "read_references", "read_estimates",
     # fast decoding
     "FAST_TYPES", "CdrError", "cdr_layout", "decode_rows", "decode_payloads",

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
-from .series import read_topic_rows, segments_of
+from .decoded import read_topic_rows
+from .series import segments_of
 
 
 @dataclass(frozen=True)

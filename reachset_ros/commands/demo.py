@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import launch
 from ..bags.messages import BRAKE_TOPIC, FAULT_ONSET_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC, STATUS_TOPIC
-from ..bags.series import read_messages
+from ..bags import read_messages
 from ..domain import pick_domain_id
 from ..errors import ReachsetError
 from ..plots import demo_plots

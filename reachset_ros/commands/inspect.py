@@ -13,7 +13,7 @@ from rosbags.rosbag2 import Reader
 
 from ..bags.messages import (JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE, header_stamp_ns,
                              typestore)
-from ..bags.series import _check_bag_path
+from ..bags import check_bag_path as _check_bag_path
 from ..errors import ReachsetError
 from . import emit
 

@@ -35,15 +35,20 @@ monitor
     The online monitor: Theorem 1 checked tick by tick (:class:`Monitor`,
     :class:`JointMonitor`), with the same arithmetic as :func:`sweep`, so
     ``reachset replay`` and the monitor node give exactly ``reachset check``'s verdicts.
+watches
+    The monitor's events (:class:`TickEvent`, :class:`FaultEvent`) and the fault watches of
+    its input (:class:`CoverageWatch`, :class:`StuckSensorWatch`).
+monitor_core
+    The monitor node without ROS (:class:`MonitorCore`): pairing of ``/joint_states`` and
+    ``/plant_input`` by stamp and joint name, fault detection, the monitor.
 
 All arithmetic on the nominal trajectories uses the element-wise :func:`matvec`, so the
 batch sweep and the online monitor, which advances one tick at a time, produce bitwise
 identical deviations and hence identical verdicts.
 
-Dependencies: this subpackage may import :mod:`reachset_ros.sets`,
-:mod:`reachset_ros.systems`, :mod:`reachset_ros.errors` and :mod:`reachset_ros.atomic`;
-not synthesis, bags, robot, sim or nodes. Code inside reachset_ros imports from the
-submodules; ``from reachset_ros import conformance as cf; cf.sweep(...)`` is for users,
+May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
+:mod:`reachset_ros.errors` and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
+nodes. Code inside reachset_ros imports from the submodules; ``from reachset_ros import conformance as cf; cf.sweep(...)`` is for users,
 tests and tools.
 """
 from .corollary1 import (StateDeviations, corollary1_constraints, identify_corollary1,
@@ -54,9 +59,11 @@ from .identify import (IdentifiedSets, frobenius_weights, identification_constra
 from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, minimum_horizon, predict_output,
                       require_horizon, require_minimum_horizon, require_runs, sweep, test_case_starts)
 from .model import ConformanceModel, JointSets
-from .monitor import FaultEvent, JointMonitor, Monitor, MonitorModel, TickEvent, TickResult
+from .monitor import JointMonitor, Monitor, MonitorModel, TickResult
+from .monitor_core import MonitorCore
 from .theorem1 import (CheckResult, Deviations, Theorem1, check, check_extremes, combine, deviation_extremes,
                        deviation_extremes_many, initial_error_maps, output_normals, xi_of)
+from .watches import CoverageWatch, FaultEvent, StuckSensorWatch, TickEvent
 from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tick,
                          inject_acceleration_fault, validation_grid)
 
@@ -80,5 +87,7 @@ __all__ = [
     # model
     "ConformanceModel", "JointSets",
     # monitor
-    "MonitorModel", "TickResult", "JointMonitor", "Monitor", "TickEvent", "FaultEvent",
+    "MonitorModel", "TickResult", "JointMonitor", "Monitor",
+    # watches, monitor_core
+    "TickEvent", "FaultEvent", "CoverageWatch", "StuckSensorWatch", "MonitorCore",
 ]

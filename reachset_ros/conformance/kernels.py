@@ -282,8 +282,17 @@ def _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X):
     starts, rem = np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(rem, np.int64)
     ya = np.empty((K + 1, ny, M))
     p = ptr
-    rc = LIB.reachset_sweep_block(p(A), p(B), p(C), p(D), int(bool(np.any(plant.D))), A.shape[0], B.shape[1],
-                                  ny, p(y), p(u), p(starts), p(rem), M, K, p(X), p(ya))
+    # The C function's 16 arguments in the order of its signature in _tick.c (and of its
+    # ``argtypes`` above): a foreign function takes positional arguments only, so they are
+    # named here, one per line, and passed as one tuple.
+    args = (p(A), p(B), p(C), p(D),             # const double *A, *B, *C, *D: the plant
+            int(bool(np.any(plant.D))),         # int64_t has_d: D is not zero
+            A.shape[0], B.shape[1], ny,         # int64_t n, nu, ny: states, inputs, outputs
+            p(y), p(u),                         # const double *y, *u: the recording
+            p(starts), p(rem),                  # const int64_t *starts, *rem: the test cases
+            M, K,                               # int64_t M, horizon: test cases, largest step
+            p(X), p(ya))                        # double *X (initial states, advanced), *ya (out)
+    rc = LIB.reachset_sweep_block(*args)
     if rc != 0:
         raise RuntimeError("reachset_sweep_block failed")
     for k in range(K + 1):

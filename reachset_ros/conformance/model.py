@@ -214,8 +214,9 @@ def from_dict(d, source="model") -> ConformanceModel:
             initial_error_maps(plant, est)
         except ReachsetError as e:
             raise ReachsetError(f"{source}: {e}") from None
-    return ConformanceModel(plant, dict(d["plant"]), est, horizon, joints, inflation,
-                            d.get("provenance", {}) or {}, k_min, below, iss)
+    return ConformanceModel(plant=plant, plant_spec=dict(d["plant"]), estimator=est, horizon=horizon, joints=joints,
+                            inflation=inflation, provenance=d.get("provenance", {}) or {}, minimum_horizon=k_min,
+                            horizon_below_minimum=below, initial_state_set=iss)
 
 
 def load(path) -> ConformanceModel:

@@ -13,8 +13,10 @@ single-process model to the bit (provenance aside) for any split of the bags.
 the workflows (:mod:`reachset_ros.workflows`) use; the synthesis package never imports this one:
 the workflow hands the fleet's sweep to it (:func:`reachset_ros.workflows.synthesize.sweep_on_fleet`).
 
-May import ``errors``, ``bags``, ``conformance``, ``robot`` (``--input effort``) and ``synthesis``
-(the recorded loop of a re-identification); never ``sim``, ``nodes``, ``workflows`` or ``commands``.
+May import: :mod:`reachset_ros.bags`, :mod:`reachset_ros.conformance`,
+:mod:`reachset_ros.synthesis` (a re-identification's recorded loop, per bag),
+:mod:`reachset_ros.robot` (``--input effort``) and :mod:`reachset_ros.errors`; never ``sim``
+or the ROS layers. The synthesis never imports this package.
 """
 from .tasks import (BagCheck, BagExtremes, BagHeader, FleetSweep, ReadSpec, SweepSpec, bag_check, bag_extremes, bag_header,
                     merge_checks, merge_extremes, require_agreement)

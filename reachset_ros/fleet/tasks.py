@@ -28,7 +28,7 @@ import numpy as np
 
 from ..bags import read_estimates, read_references
 from ..bags.messages import header_stamp_ns
-from ..bags.series import PERIOD_TOLERANCE, ReadReport, merge_reports, read_joint_series
+from ..bags import PERIOD_TOLERANCE, ReadReport, merge_reports, read_joint_series
 from ..conformance.kernels import require_runs
 from ..conformance.model import file_sha256
 from ..conformance.theorem1 import CheckResult, Deviations, check, combine, deviation_extremes
@@ -136,7 +136,7 @@ def bag_header(path, read: ReadSpec, count=HEADER_MESSAGES):
     the headers of all bags before sending any sweep. A joint that first appears later in
     a bag is still caught when the parts are merged (:func:`merge_extremes`).
     """
-    from ..bags.series import _check_bag_path, read_messages
+    from ..bags import check_bag_path as _check_bag_path, read_messages
     p = Path(path)
     _check_bag_path(p)
     y_topic, u_topic = read.topics

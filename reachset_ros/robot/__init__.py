@@ -34,10 +34,9 @@ The names of ``dynamics``, ``model_error`` and ``inertial_id`` are re-exported h
 (``from reachset_ros import robot as rb; rb.load_model()``); ``input_limits``, ``interval``
 and ``lwa4p`` are used as modules.
 
-Dependencies: from reachset_ros only :mod:`reachset_ros.errors` and
-:mod:`reachset_ros.atomic` (and :mod:`reachset_ros.bags`, which ``lwa4p`` writes its bags
-with); otherwise Pinocchio, numpy, scipy, PyYAML, and cvxpy (lazily, for the LMI
-identification only).
+May import: :mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic` and :mod:`reachset_ros.bags`
+(which ``lwa4p`` writes the imported recordings with); otherwise Pinocchio, numpy, scipy,
+PyYAML, and cvxpy (lazily, for the LMI identification only).
 """
 from .dynamics import (COULOMB_VELOCITY, DEFAULT_URDF, JOINT_NAMES, TABLE1_QD_MAX, TABLE1_Q_MAX,
                        TABLE1_TAU_MAX, U_REF, Friction, RobotModel, apply_params, create_data,

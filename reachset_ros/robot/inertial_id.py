@@ -303,7 +303,7 @@ def _stage1(model, gram, theta0, fit_scale, terms):
     return theta, s
 
 
-def _lmi_step(model, H, g, theta_ref, D2, prior_weight, min_armature, cache,
+def _lmi_step(model, *, H, g, theta_ref, D2, prior_weight, min_armature, cache,
               fixed=(), nonneg=()):
     """min theta^T H theta - 2 g^T theta + w ||D (theta - theta_ref)||^2 subject to
     physical consistency (pseudo-inertia of every link PSD) and armature >= min_armature;
@@ -429,91 +429,127 @@ def identify_inertial(model: RobotModel, gram: TorqueGram, *, method: str = "lmi
     settings = {"prior_weight": prior_weight, "scale_weight": scale_weight,
                 "friction_terms": list(terms), "nonnegative_friction": nonnegative_friction,
                 "placeholder_rms": rms1.tolist(), "placeholder_scale": s.tolist()}
-    if method != "placeholder":
+    if method == "ls":
+        data = _WeightedData.of(gram, rms1, s, scale_weight)
+        theta, s = _fit_ls(data, base=base, theta0=theta0, prior_weight=prior_weight, fit_scale=fit_scale,
+                           settings=settings)
+    elif method == "lmi":
+        data = _WeightedData.of(gram, rms1, s, scale_weight)
+        theta, s = _fit_lmi(data, model=model, theta0=theta0, prior_weight=prior_weight,
+                            min_armature=min_armature, terms=terms, nonnegative_friction=nonnegative_friction,
+                            fit_scale=fit_scale, max_iter=max_iter, tol=tol, settings=settings)
+    ident = with_parameters(model, theta, torque_scale=s, source=f"identified ({method})")
+    return Identification(model=ident, theta=theta, beta=base.base(theta), base=base, torque_scale=s,
+                          rms=gram.rms(theta, s), samples=N, method=method, settings=settings)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _WeightedData:
+    """The data of the second stage of :func:`identify_inertial`: the gram's rows of joint j
+    weighted by the inverse squared residual RMS of the placeholder stage, and the prior on
+    the log torque scales (``rho0``: the placeholder stage's, implausible ones replaced by
+    the median)."""
+
+    Gw: np.ndarray
+    cw: np.ndarray
+    uuw: np.ndarray
+    rho0: np.ndarray
+    N: int
+    scale_weight: float
+
+    @classmethod
+    def of(cls, gram, rms1, s, scale_weight):
         w2 = 1.0 / np.maximum(rms1, 1e-9 * rms1.max()) ** 2
-        Gw, cw = gram.G * w2[:, None, None], gram.c * w2[:, None]
-        uuw = gram.uu * w2
         ok = s < 1e5
         rho0 = np.log(s)
         rho0[~ok] = np.median(rho0[ok]) if ok.any() else 0.0
+        return cls(Gw=gram.G * w2[:, None, None], cw=gram.c * w2[:, None], uuw=gram.uu * w2, rho0=rho0,
+                   N=gram.N, scale_weight=scale_weight)
 
-        def data_cost(th, rho):
-            gi = np.exp(-rho)
-            return float(np.sum(gi ** 2 * np.einsum("p,npq,q->n", th, Gw, th)
-                                - 2 * gi * (cw @ th) + uuw))
+    def data_cost(self, th, rho):
+        gi = np.exp(-rho)
+        return float(np.sum(gi ** 2 * np.einsum("p,npq,q->n", th, self.Gw, th)
+                            - 2 * gi * (self.cw @ th) + self.uuw))
 
-        def scale_prior(rho):
-            return scale_weight * N * float(np.sum((rho - rho0) ** 2))
+    def scale_prior(self, rho):
+        return self.scale_weight * self.N * float(np.sum((rho - self.rho0) ** 2))
 
-        if method == "ls":
-            ind = base.independent
-            Gb, cb = Gw[:, ind][:, :, ind], cw[:, ind]
-            beta0 = base.base(theta0)
-            D2 = np.einsum("npp,n->p", Gb, np.exp(-2 * rho0))
-            D2 = np.maximum(D2, 1e-9 * D2.max())
 
-            def solve(rho):
-                gi = np.exp(-rho)
-                H = np.einsum("n,npq->pq", gi ** 2, Gb) + prior_weight * np.diag(D2)
-                return np.linalg.solve(H, np.einsum("n,np->p", gi, cb)
-                                       + prior_weight * D2 * beta0)
+def _fit_ls(data: _WeightedData, *, base, theta0, prior_weight, fit_scale, settings):
+    """Method ``"ls"`` of :func:`identify_inertial`: base parameters by ridge least squares,
+    scales by variable projection. Returns ``(theta, s)``; ``settings`` gets the iterations."""
+    Gw, cw, uuw, rho0 = data.Gw, data.cw, data.uuw, data.rho0
+    ind = base.independent
+    Gb, cb = Gw[:, ind][:, :, ind], cw[:, ind]
+    beta0 = base.base(theta0)
+    D2 = np.einsum("npp,n->p", Gb, np.exp(-2 * rho0))
+    D2 = np.maximum(D2, 1e-9 * D2.max())
 
-            def cost(rho):
-                b = solve(rho)
-                gi = np.exp(-rho)
-                dc = np.sum(gi ** 2 * np.einsum("p,npq,q->n", b, Gb, b) - 2 * gi * (cb @ b) + uuw)
-                return dc + prior_weight * np.sum(D2 * (b - beta0) ** 2) + scale_prior(rho)
+    def solve(rho):
+        gi = np.exp(-rho)
+        H = np.einsum("n,npq->pq", gi ** 2, Gb) + prior_weight * np.diag(D2)
+        return np.linalg.solve(H, np.einsum("n,np->p", gi, cb)
+                               + prior_weight * D2 * beta0)
 
-            rho = rho0
-            if fit_scale:
-                sol = scipy.optimize.minimize(cost, rho0, method="L-BFGS-B",
-                                              bounds=[(r - 5.0, r + 5.0) for r in rho0])
-                rho = sol.x
-                settings.update(iterations=int(sol.nit))
-            theta = base.standard(solve(rho), theta0)
-            s = np.exp(rho)
-        else:
-            D2 = np.einsum("npp,n->p", Gw, np.exp(-2 * rho0))
-            D2 = np.maximum(D2, 1e-6 * D2.max())
-            cache = {}
-            last = {}
-            fc = _friction_cols(n, ("viscous", "coulomb", "offset"))
-            fixed = np.concatenate([fc[t] for t in fc if t not in terms] + [np.zeros(0, int)])
-            nonneg = (np.concatenate([fc["viscous"], fc["coulomb"]]) if nonnegative_friction
-                      else np.zeros(0, int))
+    def cost(rho):
+        b = solve(rho)
+        gi = np.exp(-rho)
+        dc = np.sum(gi ** 2 * np.einsum("p,npq,q->n", b, Gb, b) - 2 * gi * (cb @ b) + uuw)
+        return dc + prior_weight * np.sum(D2 * (b - beta0) ** 2) + data.scale_prior(rho)
 
-            def profile(rho):
-                """Cost with theta optimal for these scales, and its exact gradient
-                (envelope theorem: the constraints do not depend on the scales)."""
-                gi = np.exp(-rho)
-                H = np.einsum("n,npq->pq", gi ** 2, Gw)
-                g = np.einsum("n,np->p", gi, cw)
-                th = _lmi_step(model, H, g, theta0, D2, prior_weight, min_armature, cache,
-                               fixed, nonneg)
-                last["theta"] = th
-                a = np.einsum("p,npq,q->n", th, Gw, th)
-                b = cw @ th
-                total = (data_cost(th, rho) + scale_prior(rho)
-                         + prior_weight * float(np.sum(D2 * (th - theta0) ** 2)))
-                grad = (-2 * gi ** 2 * a + 2 * gi * b + 2 * scale_weight * N * (rho - rho0))
-                return total / N, grad / N      # per sample: O(1) numbers for L-BFGS
+    rho = rho0
+    if fit_scale:
+        sol = scipy.optimize.minimize(cost, rho0, method="L-BFGS-B",
+                                      bounds=[(r - 5.0, r + 5.0) for r in rho0])
+        rho = sol.x
+        settings.update(iterations=int(sol.nit))
+    return base.standard(solve(rho), theta0), np.exp(rho)
 
-            rho = rho0.copy()
-            if fit_scale:
-                sol = scipy.optimize.minimize(profile, rho0, jac=True, method="L-BFGS-B",
-                                              bounds=[(r - 5.0, r + 5.0) for r in rho0],
-                                              options={"maxiter": max_iter, "ftol": tol,
-                                                       "gtol": 1e-9})
-                rho = sol.x
-                settings.update(iterations=int(sol.nit), evaluations=int(sol.nfev),
-                                converged=bool(sol.success), message=str(sol.message))
-            profile(rho)
-            theta = last["theta"]
-            settings.update(min_armature=min_armature)
-            s = np.exp(rho)
-    ident = with_parameters(model, theta, torque_scale=s, source=f"identified ({method})")
-    return Identification(ident, theta, base.base(theta), base, s, gram.rms(theta, s), N,
-                          method, settings)
+
+def _fit_lmi(data: _WeightedData, *, model, theta0, prior_weight, min_armature, terms, nonnegative_friction,
+             fit_scale, max_iter, tol, settings):
+    """Method ``"lmi"`` of :func:`identify_inertial`: the physically consistent fit for fixed
+    scales (:func:`_lmi_step`), the scales by L-BFGS-B over its profile. Returns ``(theta, s)``;
+    ``settings`` gets the solver's report."""
+    Gw, cw, rho0, N = data.Gw, data.cw, data.rho0, data.N
+    n = model.nv
+    D2 = np.einsum("npp,n->p", Gw, np.exp(-2 * rho0))
+    D2 = np.maximum(D2, 1e-6 * D2.max())
+    cache = {}
+    last = {}
+    fc = _friction_cols(n, ("viscous", "coulomb", "offset"))
+    fixed = np.concatenate([fc[t] for t in fc if t not in terms] + [np.zeros(0, int)])
+    nonneg = (np.concatenate([fc["viscous"], fc["coulomb"]]) if nonnegative_friction
+              else np.zeros(0, int))
+
+    def profile(rho):
+        """Cost with theta optimal for these scales, and its exact gradient
+        (envelope theorem: the constraints do not depend on the scales)."""
+        gi = np.exp(-rho)
+        H = np.einsum("n,npq->pq", gi ** 2, Gw)
+        g = np.einsum("n,np->p", gi, cw)
+        th = _lmi_step(model, H=H, g=g, theta_ref=theta0, D2=D2, prior_weight=prior_weight,
+                       min_armature=min_armature, cache=cache, fixed=fixed, nonneg=nonneg)
+        last["theta"] = th
+        a = np.einsum("p,npq,q->n", th, Gw, th)
+        b = cw @ th
+        total = (data.data_cost(th, rho) + data.scale_prior(rho)
+                 + prior_weight * float(np.sum(D2 * (th - theta0) ** 2)))
+        grad = (-2 * gi ** 2 * a + 2 * gi * b + 2 * data.scale_weight * N * (rho - rho0))
+        return total / N, grad / N      # per sample: O(1) numbers for L-BFGS
+
+    rho = rho0.copy()
+    if fit_scale:
+        sol = scipy.optimize.minimize(profile, rho0, jac=True, method="L-BFGS-B",
+                                      bounds=[(r - 5.0, r + 5.0) for r in rho0],
+                                      options={"maxiter": max_iter, "ftol": tol,
+                                               "gtol": 1e-9})
+        rho = sol.x
+        settings.update(iterations=int(sol.nit), evaluations=int(sol.nfev),
+                        converged=bool(sol.success), message=str(sol.message))
+    profile(rho)
+    settings.update(min_armature=min_armature)
+    return last["theta"], np.exp(rho)
 
 
 def predict_logged(model: RobotModel, data: pin.Data, Q, QD, QDD) -> np.ndarray:

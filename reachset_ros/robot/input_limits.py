@@ -42,7 +42,7 @@ Pure numpy/scipy + Pinocchio; no ROS import.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -412,65 +412,15 @@ def input_limits(model=None, tau_max=None, q_max=None, qd_max=None, splits=4, me
     spl = np.broadcast_to(np.asarray(splits, int), (n,))
     if np.any(spl < 1):
         raise ReachsetError("splits must be >= 1")
-    fixed = invariant_joints(model)
-    history = []
-    rounds = 0
     if method == "interval":
-        mbar, psibar, blo, bhi, fixed = mass_psi_bounds(model, q_max, qd_max, spl)
-        A, b = mbar.reshape(-1, n), (tau_max[None, :] - psibar).reshape(-1)
-        _feasible_or_raise(model, b, psibar, tau_max)
-        w = _weights(weights, mbar, tau_max, n)
-        a = _max_min_fair(A, b, n, w)
-        history.append((len(blo), a))
+        fit = _interval_fit(model, tau_max=tau_max, q_max=q_max, qd_max=qd_max, spl=spl, weights=weights)
     elif method == "taylor":
-        dims = [j for j in range(n) if j not in fixed]
-        tb = TrigBounds(model, dims)
-        base = next_up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
-        blo, bhi = _boxes(-q_max, q_max, spl, fixed)
-
-        def bounds_of(lo, hi):
-            c = 0.5 * (lo + hi)
-            r = np.maximum(next_up(hi - c), next_up(c - lo))
-            mb, gb, cm, cg = tb.box_bounds(c, r)
-            return mb, next_up(gb + base), cm, cg
-
-        mbar, psibar, contM, contg = bounds_of(blo, bhi)
-        w = _weights(weights, mbar, tau_max, n)
-        while True:
-            A, b = mbar.reshape(-1, n), (tau_max[None, :] - psibar).reshape(-1)
-            _feasible_or_raise(model, b, psibar, tau_max)
-            a = _max_min_fair(A, b, n, w)
-            history.append((len(blo), a))
-            if rounds >= refine:
-                break
-            slack = (tau_max[None, :] - psibar - np.einsum("bij,j->bi", mbar, a)) / tau_max[None, :]
-            worst_axis = slack.argmin(axis=1)
-            tight = np.flatnonzero(slack.min(axis=1) <= 0.01)
-            if len(tight) == 0 or len(blo) + len(tight) > max_boxes:
-                break
-            rounds += 1
-            new_lo, new_hi = [], []
-            for bx in tight:
-                i = worst_axis[bx]
-                cont = np.einsum("jl,j->l", contM[bx, i], a) + contg[bx, i]
-                l = dims[int(np.argmax(cont))]
-                mid = 0.5 * (blo[bx, l] + bhi[bx, l])
-                lo1, hi1 = blo[bx].copy(), bhi[bx].copy()
-                hi1[l] = mid
-                lo2, hi2 = blo[bx].copy(), bhi[bx].copy()
-                lo2[l] = mid
-                new_lo += [lo1, lo2]
-                new_hi += [hi1, hi2]
-            keep = np.ones(len(blo), bool)
-            keep[tight] = False
-            nlo, nhi = np.array(new_lo), np.array(new_hi)
-            mb2, pb2, cm2, cg2 = bounds_of(nlo, nhi)
-            blo, bhi = np.vstack([blo[keep], nlo]), np.vstack([bhi[keep], nhi])
-            mbar, psibar = np.concatenate([mbar[keep], mb2]), np.concatenate([psibar[keep], pb2])
-            contM, contg = np.concatenate([contM[keep], cm2]), np.concatenate([contg[keep], cg2])
+        fit = _taylor_fit(model, tau_max=tau_max, q_max=q_max, qd_max=qd_max, spl=spl, weights=weights,
+                          refine=refine, max_boxes=max_boxes)
     else:
         raise ReachsetError(f"unknown input-limits method {method!r} (taylor or interval)")
-    N = len(blo)
+    a, mbar, psibar = fit.a, fit.mbar, fit.psibar
+    N = fit.boxes
     A, b = mbar.reshape(-1, n), (tau_max[None, :] - psibar).reshape(-1)
     lhs = (A @ a).reshape(N, n) + psibar
     worst = lhs.max(axis=0)
@@ -484,8 +434,92 @@ def input_limits(model=None, tau_max=None, q_max=None, qd_max=None, splits=4, me
         use = [mbar[:, i, j].max() * a[j] / tau_max[i] for i in tight_rows]
         binding.append(int(tight_rows[int(np.argmax(use))]))
     sampled = sampled_worst_torque(model, a, q_max, qd_max, samples, seed)
-    return InputLimits(a, tau_max, q_max, qd_max, method, N, rounds, tuple(binding), worst, sampled,
-                       tuple(fixed), tuple(model.joint_names), model.source, tuple(history), tuple(w))
+    return InputLimits(a=a, tau_max=tau_max, q_max=q_max, qd_max=qd_max, method=method, boxes=N, rounds=fit.rounds,
+                       binding=tuple(binding), worst_torque=worst, sampled_torque=sampled,
+                       invariant_joints=tuple(fit.fixed), joint_names=tuple(model.joint_names), source=model.source,
+                       history=tuple(fit.history), weights=tuple(fit.w))
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Fit:
+    """The lexicographic max-min ``a`` of :func:`input_limits` and the sub-box bounds it was
+    computed from (``mbar`` (boxes, n, n), ``psibar`` (boxes, n))."""
+
+    a: np.ndarray
+    mbar: np.ndarray
+    psibar: np.ndarray
+    boxes: int
+    w: np.ndarray
+    fixed: object
+    rounds: int = 0
+    history: list = field(default_factory=list)
+
+
+def _interval_fit(model, *, tau_max, q_max, qd_max, spl, weights):
+    """``method="interval"`` of :func:`input_limits`: interval RNEA on the uniform split."""
+    n = model.nv
+    mbar, psibar, blo, bhi, fixed = mass_psi_bounds(model, q_max, qd_max, spl)
+    A, b = mbar.reshape(-1, n), (tau_max[None, :] - psibar).reshape(-1)
+    _feasible_or_raise(model, b, psibar, tau_max)
+    w = _weights(weights, mbar, tau_max, n)
+    a = _max_min_fair(A, b, n, w)
+    return _Fit(a=a, mbar=mbar, psibar=psibar, boxes=len(blo), w=w, fixed=fixed, history=[(len(blo), a)])
+
+
+def _taylor_fit(model, *, tau_max, q_max, qd_max, spl, weights, refine, max_boxes):
+    """``method="taylor"`` of :func:`input_limits`: :class:`TrigBounds` on the sub-boxes, then up
+    to ``refine`` rounds bisecting the boxes whose torque rows bind (along the coordinate that
+    contributes most), at most ``max_boxes`` boxes."""
+    n = model.nv
+    fixed = invariant_joints(model)
+    history = []
+    rounds = 0
+    dims = [j for j in range(n) if j not in fixed]
+    tb = TrigBounds(model, dims)
+    base = next_up(tb.coriolis_bound(qd_max) + _friction_bound(model, -qd_max, qd_max))
+    blo, bhi = _boxes(-q_max, q_max, spl, fixed)
+
+    def bounds_of(lo, hi):
+        c = 0.5 * (lo + hi)
+        r = np.maximum(next_up(hi - c), next_up(c - lo))
+        mb, gb, cm, cg = tb.box_bounds(c, r)
+        return mb, next_up(gb + base), cm, cg
+
+    mbar, psibar, contM, contg = bounds_of(blo, bhi)
+    w = _weights(weights, mbar, tau_max, n)
+    while True:
+        A, b = mbar.reshape(-1, n), (tau_max[None, :] - psibar).reshape(-1)
+        _feasible_or_raise(model, b, psibar, tau_max)
+        a = _max_min_fair(A, b, n, w)
+        history.append((len(blo), a))
+        if rounds >= refine:
+            break
+        slack = (tau_max[None, :] - psibar - np.einsum("bij,j->bi", mbar, a)) / tau_max[None, :]
+        worst_axis = slack.argmin(axis=1)
+        tight = np.flatnonzero(slack.min(axis=1) <= 0.01)
+        if len(tight) == 0 or len(blo) + len(tight) > max_boxes:
+            break
+        rounds += 1
+        new_lo, new_hi = [], []
+        for bx in tight:
+            i = worst_axis[bx]
+            cont = np.einsum("jl,j->l", contM[bx, i], a) + contg[bx, i]
+            l = dims[int(np.argmax(cont))]
+            mid = 0.5 * (blo[bx, l] + bhi[bx, l])
+            lo1, hi1 = blo[bx].copy(), bhi[bx].copy()
+            hi1[l] = mid
+            lo2, hi2 = blo[bx].copy(), bhi[bx].copy()
+            lo2[l] = mid
+            new_lo += [lo1, lo2]
+            new_hi += [hi1, hi2]
+        keep = np.ones(len(blo), bool)
+        keep[tight] = False
+        nlo, nhi = np.array(new_lo), np.array(new_hi)
+        mb2, pb2, cm2, cg2 = bounds_of(nlo, nhi)
+        blo, bhi = np.vstack([blo[keep], nlo]), np.vstack([bhi[keep], nhi])
+        mbar, psibar = np.concatenate([mbar[keep], mb2]), np.concatenate([psibar[keep], pb2])
+        contM, contg = np.concatenate([contM[keep], cm2]), np.concatenate([contg[keep], cg2])
+    return _Fit(a=a, mbar=mbar, psibar=psibar, boxes=len(blo), w=w, fixed=fixed, rounds=rounds, history=history)
 
 
 def _weights(weights, mbar, tau_max, n):

@@ -10,8 +10,8 @@ The set arithmetic everything else builds on, pure numpy/scipy:
   invariant set (:func:`invariant_outer`) and its interval-hull radius as a linear function
   of the generator scalings (:func:`radius_coefficients`, used by the synthesis' LP).
 
-May import: nothing of reachset_ros except :mod:`reachset_ros.errors` (this is the bottom
-layer; systems, conformance and synthesis import it).
+May import: :mod:`reachset_ros.errors` only (this is the bottom layer; systems, conformance
+and synthesis import it).
 """
 from .reachability import (InvariantSet, NotStableError, RadiusInfo, disturbance_output_sets,
                            invariant_outer, markov_parameters, nominal_outputs, radius_coefficients,

@@ -568,6 +568,18 @@ class RadiusInfo:
     exact_restriction: bool = False
 
 
+def _feedthrough(Hm, Dw, Dv, *, p, gw, gv):
+    """``(|H D|, its upper bound with the rounding of fl(H D))`` of :func:`radius_coefficients`
+    (``D = [Dw, Dv]``, zero where not given; ``H`` the identity when ``Hm`` is None)."""
+    D = np.hstack([np.zeros((p, gw)) if Dw is None else np.asarray(Dw, float).reshape(p, gw),
+                   np.zeros((p, gv)) if Dv is None else np.asarray(Dv, float).reshape(p, -1)])
+    if Hm is None:
+        HD = np.abs(D)
+        return HD, HD
+    HD = np.abs(Hm @ D)
+    return HD, HD + _gamma(p) * (np.abs(Hm) @ np.abs(D))
+
+
 def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_info=False):
     """Interval-hull radius of ``H`` times the outer invariant output set, linear in ``alpha``.
 
@@ -653,14 +665,7 @@ def radius_coefficients(A, Ew, Ev, C, Dw=None, Dv=None, H=None, eps=EPS, return_
     q, r = Mr.shape
     if s and Hm is not None and exact:                     # fl(H C) instead of H C
         K = K + _gamma(p) * ((np.abs(Hm) @ np.abs(C))[:, J] @ R_all)
-    D = np.hstack([np.zeros((p, gw)) if Dw is None else np.asarray(Dw, float).reshape(p, gw),
-                   np.zeros((p, Ev.shape[1])) if Dv is None else np.asarray(Dv, float).reshape(p, -1)])
-    if Hm is None:
-        HD = np.abs(D)
-        HDb = HD
-    else:
-        HD = np.abs(Hm @ D)
-        HDb = HD + _gamma(p) * (np.abs(Hm) @ np.abs(D))
+    HD, HDb = _feedthrough(Hm, Dw, Dv, p=p, gw=gw, gv=Ev.shape[1])
     K = (K + HDb) * (1.0 + _gamma(q + r + 32))
     K_inner = K_inner + HD
     Kw, Kv = K[:, :gw], K[:, gw:]

@@ -13,9 +13,16 @@ limits, effort limits, brakes and the reference box come from the model
   URDF's limits for any other arm), and the stream
   ``reference_node`` publishes;
 * :mod:`~reachset_ros.sim.recordings` - simulated closed-loop recordings (written as bags)
-  for tests, benchmarks and tools.
+  for tests, benchmarks and tools;
+* :mod:`~reachset_ros.sim.safe_stop` - a safe stop on the simulated arm (the nodes' code path
+  without ROS);
+* :mod:`~reachset_ros.sim.real_runs` - the simulated arm along the real LWA-4P runs'
+  trajectories (its calibration to the real arm, ``benchmarks/calibrate_sim.py``);
+* :mod:`~reachset_ros.sim.campaign` - the fault campaign's schedule, judge and score;
+* :mod:`~reachset_ros.sim.link` - a lossy, delaying link that never reorders.
 
-May import: :mod:`reachset_ros.robot`, :mod:`reachset_ros.systems`,
-:mod:`reachset_ros.synthesis` (only the recordings, for the reference-error loop) and
-:mod:`reachset_ros.bags` (to write recordings), plus :mod:`reachset_ros.errors`.
+May import: :mod:`reachset_ros.robot`, :mod:`reachset_ros.systems` (the control law and the
+closed loop driven by references), :mod:`reachset_ros.conformance` (``real_runs`` identifies
+sets), :mod:`reachset_ros.bags` (to write and read recordings) and :mod:`reachset_ros.errors`;
+never ``synthesis`` or ``fleet``.
 """

@@ -2,12 +2,13 @@
 
 Two sources: independent joints of the per-joint plant of the paper's Appendix A with bounded
 disturbances and a smooth model error along a sum-of-sines reference (:class:`Scenario`,
-:func:`simulate_recordings`, through :func:`reachset_ros.synthesis.reference_error.simulate_closed_loop`),
+:func:`simulate_recordings`, through :func:`reachset_ros.systems.reference_loop.simulate_closed_loop`),
 and the project's simulated arm (the LWA-4P, or any URDF's) driven by the nodes' control law
 (:func:`simulate_arm_recordings`). Either becomes synthesis input directly
 (:func:`recordings_series`) or a rosbag2 with the topics of INTERFACES.md (:func:`write_recordings`).
 
-May import :mod:`reachset_ros.synthesis`; the synthesis never imports this module.
+Imports :mod:`reachset_ros.systems` for the loop, never :mod:`reachset_ros.synthesis`; the
+synthesis never imports this module.
 """
 from __future__ import annotations
 
@@ -23,11 +24,10 @@ from ..bags import JointSeries
 from ..bags.messages import ESTIMATE_TOPIC, REFERENCE_TOPIC
 from ..bags.references import Reference
 from ..errors import ReachsetError
-from ..synthesis.config import components_from_gains
-from ..synthesis.reference_error import reference_state, simulate_closed_loop
 from ..systems.closedloop import closed_loop_tick
-from ..systems.gains import family_controller
+from ..systems.gains import Gains, family_controller
 from ..systems.plant import lwa4p_joint_plant
+from ..systems.reference_loop import reference_state, simulate_closed_loop
 from . import reference as refm
 from . import simulator as simm
 
@@ -116,7 +116,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
         Everything (references, disturbances) is a deterministic function of the seed and the
         joint's position in ``joints``.
     gains : dict, optional
-        ``{joint: gains}`` (model-file gains, :func:`reachset_ros.synthesis.config.components_from_gains`)
+        ``{joint: gains}`` (model-file gains, :meth:`reachset_ros.systems.gains.Gains.from_model`)
         or one gains dict for all joints; default HG (15, 30, eps 0.01) + static feedback (omega 20,
         zeta 1).
     scenarios : dict, optional
@@ -132,7 +132,7 @@ def simulate_recordings(joints, ticks, seed=0, gains=None, scenarios=None, plant
     for i, name in enumerate(joints):
         g = gains.get(name, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
             gains or DEFAULT_GAINS)
-        obs, ctrl = components_from_gains(g, dt)
+        obs, ctrl = Gains.from_model(g).build(dt)
         sc = (scenarios or {}).get(name) or Scenario.for_joint(i)
         rng = np.random.default_rng([int(seed), i])
         q_d, qd_d, qdd_d = _reference(ticks, dt, rng, sc)
@@ -197,6 +197,49 @@ def write_recordings(path, recs, reference=True, estimate=True, storage="mcap"):
     return Path(path)
 
 
+def _arm_reference(cfg, names, *, seconds, seed, reference_config, reference):
+    """``(Qd, QDd, QDDd)`` (T, n) of :func:`simulate_arm_recordings`: the explicit ``reference``,
+    or the project's random point-to-point trajectories of ``seconds`` (Table I for the LWA-4P,
+    the URDF's limits for any other arm)."""
+    n = len(names)
+    if reference_config is None and names != tuple(rb.JOINT_NAMES):
+        reference_config = refm.ReferenceConfig.for_robot(cfg.robot)
+    if reference is None:
+        gen = refm.ReferenceGenerator(reference_config, seed=seed)
+        _, Qd, QDd, QDDd = gen.trajectory(seconds, cfg.dt)
+        return Qd, QDd, QDDd
+    Qd, QDd, QDDd = (np.asarray(a, dtype=np.float64).reshape(-1, n) for a in reference)
+    if not (len(Qd) == len(QDd) == len(QDDd) > 1):
+        raise ReachsetError("simulate_arm_recordings: reference arrays of different lengths")
+    return Qd, QDd, QDDd
+
+
+def _joint_loops(names, gains, *, dt, q0, ref0):
+    """Each joint's ``(observer, controller)``, initial observer state and estimate names, from
+    ``gains`` (``{joint: gains}`` or one gains dict, default :data:`DEFAULT_GAINS`), the first
+    measurement ``q0`` and the first reference sample ``ref0 = (Qd[:1], QDd[:1], QDDd[:1])``."""
+    Qd0, QDd0, QDDd0 = ref0
+    comps, states, xnames = [], [], []
+    for j, nm in enumerate(names):
+        g = gains.get(nm, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
+            gains or DEFAULT_GAINS)
+        obs, ctrl = Gains.from_model(g).build(dt)
+        xr0 = reference_state(obs.estimate_names, Qd0[:, j], QDd0[:, j], QDDd0[:, j])[0]
+        comps.append((obs, ctrl))
+        states.append(obs.initial_state(xr0, [q0[j]], [QDDd0[0, j]]))
+        xnames.append(obs.estimate_names)
+    return comps, states, xnames
+
+
+def _reference_row(names, q_d, qd_d, qdd_d, k):
+    """The reference of tick ``k`` in the estimate coordinates ``names`` (q, qd, d, q_prev, u_prev)."""
+    xr = np.empty(len(names))
+    for i, nm in enumerate(names):
+        xr[i] = {"q": q_d[k], "qd": qd_d[k], "d": 0.0,
+                 "q_prev": q_d[max(k - 1, 0)], "u_prev": qdd_d[max(k - 1, 0)]}[nm]
+    return xr
+
+
 def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, reference_config=None, faults=(),
                             log=None, reference=None):
     """Recordings of the project's simulated arm (:mod:`reachset_ros.sim.simulator`) in closed loop.
@@ -251,30 +294,15 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     names = tuple(arm.joint_names)
     n = len(names)
     dt = cfg.dt
-    if reference_config is None and names != tuple(rb.JOINT_NAMES):
-        reference_config = refm.ReferenceConfig.for_robot(cfg.robot)
-    if reference is None:
-        gen = refm.ReferenceGenerator(reference_config, seed=seed)
-        _, Qd, QDd, QDDd = gen.trajectory(seconds, dt)
-    else:
-        Qd, QDd, QDDd = (np.asarray(a, dtype=np.float64).reshape(-1, n) for a in reference)
-        if not (len(Qd) == len(QDd) == len(QDDd) > 1):
-            raise ReachsetError("simulate_arm_recordings: reference arrays of different lengths")
+    Qd, QDd, QDDd = _arm_reference(cfg, names, seconds=seconds, seed=seed, reference_config=reference_config,
+                                   reference=reference)
     T = len(Qd)
     model = cfg.robot
     data = rb.create_data(model)
-    comps, states, xnames = [], [], []
     # an explicit reference (a real run) may start moving: the arm starts on it, not at rest
     m = arm.reset(Qd[0]) if reference is None else arm.reset(Qd[0], QDd[0])
     onsets = [int(arm.inject(f)) for f in faults]
-    for j, nm in enumerate(names):
-        g = gains.get(nm, DEFAULT_GAINS) if isinstance(gains, dict) and "observer" not in gains else (
-            gains or DEFAULT_GAINS)
-        obs, ctrl = components_from_gains(g, dt)
-        xr0 = reference_state(obs.estimate_names, Qd[:1, j], QDd[:1, j], QDDd[:1, j])[0]
-        comps.append((obs, ctrl))
-        states.append(obs.initial_state(xr0, [m.q_measured[j]], [QDDd[0, j]]))
-        xnames.append(obs.estimate_names)
+    comps, states, xnames = _joint_loops(names, gains, dt=dt, q0=m.q_measured, ref0=(Qd[:1], QDd[:1], QDDd[:1]))
     Y, U = np.empty((T, n)), np.empty((T, n))
     XH = [np.empty((T, len(xn))) for xn in xnames]
     stamps = np.empty(T, np.int64)
@@ -294,10 +322,7 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
                 skipped[j] += 1
                 XH[j][k] = XH[j][k - 1] if k else np.nan
                 continue
-            xr = np.empty(len(xnames[j]))
-            for i, nm in enumerate(xnames[j]):
-                xr[i] = {"q": Qd[k, j], "qd": QDd[k, j], "d": 0.0,
-                         "q_prev": Qd[max(k - 1, 0), j], "u_prev": QDDd[max(k - 1, 0), j]}[nm]
+            xr = _reference_row(xnames[j], Qd[:, j], QDd[:, j], QDDd[:, j], k)
             uj, xh, states[j] = closed_loop_tick(states[j], ctrl, [y[j]], xr, QDDd[k, j])
             u[j] = uj[0]
             XH[j][k] = xh

@@ -19,9 +19,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .. import robot as rb
-from ..synthesis.config import components_from_gains
-from ..synthesis.reference_error import reference_state
 from ..systems.closedloop import closed_loop_tick
+from ..systems.gains import Gains
+from ..systems.reference_loop import reference_state
 from ..systems.stopping import StopPolicy, StopState, rest_after_stop, stop_tick
 from . import reference as refm
 from . import simulator as simm
@@ -94,7 +94,7 @@ def simulate_safe_stop(fault, before=2.0, stop_delay=0.02, after=3.0, policy=Non
     m = arm.reset(Qd[0])
     comps, states, xnames = [], [], []
     for j in range(n):
-        obs, ctrl = components_from_gains(gains or DEFAULT_GAINS, dt)
+        obs, ctrl = Gains.from_model(gains or DEFAULT_GAINS).build(dt)
         xr0 = reference_state(obs.estimate_names, Qd[:1, j], QDd[:1, j], QDDd[:1, j])[0]
         comps.append((obs, ctrl))
         states.append(obs.initial_state(xr0, [m.q_measured[j]], [QDDd[0, j]]))
@@ -141,6 +141,7 @@ def simulate_safe_stop(fault, before=2.0, stop_delay=0.02, after=3.0, policy=Non
         # else: no estimate, no command: the previous command is held (tau unchanged)
         rec["brakes"][k] = arm.brakes
         m = arm.step(tau)
-    return StopRun(names, stamps, rec["q"], rec["qd"], rec["q_true"], rec["qd_true"], rec["brakes"].astype(bool),
-                   fault_ns if fault_ns is not None else stop_from, stop_from, dict(arm.counters),
-                   tuple(stop.reasons) if stop is not None else ())
+    return StopRun(names=names, stamps=stamps, q=rec["q"], qd=rec["qd"], q_true=rec["q_true"], qd_true=rec["qd_true"],
+                   brakes=rec["brakes"].astype(bool), fault_ns=fault_ns if fault_ns is not None else stop_from,
+                   stop_ns=stop_from, counters=dict(arm.counters),
+                   reasons=tuple(stop.reasons) if stop is not None else ())

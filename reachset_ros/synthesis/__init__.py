@@ -16,9 +16,10 @@ Submodules:
 
 * :mod:`~reachset_ros.synthesis.config`: configuration (``config/synthesis.yaml``) and the
   search space of ``theta`` (:class:`SearchSpace`, :func:`components_from_gains`).
-* :mod:`~reachset_ros.synthesis.reference_error`: the closed loop driven by references and
-  the reference error of Appendix B (:class:`ReferenceMethod`, :func:`reference_error` over
-  recorded references, :func:`class_reference_error` over a :class:`ReferenceClass`).
+* :mod:`~reachset_ros.synthesis.reference_error`: the reference error of Appendix B
+  (:class:`ReferenceMethod`, :func:`reference_error` over recorded references,
+  :func:`class_reference_error` over a :class:`ReferenceClass`) of the closed loop driven by
+  references (:mod:`reachset_ros.systems.reference_loop`, whose names are re-exported here).
 * :mod:`~reachset_ros.synthesis.problem`: the per-joint problem (:class:`JointProblem`) and
   the Theorem-1 constraints on alpha (:class:`AlphaPolytope`).
 * :mod:`~reachset_ros.synthesis.search`: the inner LP per ``theta`` (:class:`Evaluator`) and
@@ -37,15 +38,17 @@ Simulated recordings for tests, benchmarks and the docs live in
 :mod:`reachset_ros.sim.recordings`; the references recorded in bags in
 :mod:`reachset_ros.bags.references`.
 
-May import ``sets``, ``systems``, ``conformance``, ``bags`` and ``errors`` of reachset_ros;
-never ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read the
-optional reference/estimate topics); no ROS import.
+May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
+:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags` and :mod:`reachset_ros.errors`;
+never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read
+the optional reference/estimate topics); no ROS import.
 """
 from .config import (DEFAULT_CONFIG, PARAMS, PENALTY, U_MARGIN, SearchSpace, components_from_gains,
                      config_path, load_config, u_max_for)
-from .reference_error import (LoopIO, LTIPlan, ReferenceClass, ReferenceErrorSets, ReferenceMethod,
-                              class_reference_error, lti_simulate, loop_io, reference_error, reference_windows,
-                              simulate_closed_loop, steady_state, steady_state_solver)
+from ..systems.reference_loop import (LoopIO, LTIPlan, lti_simulate, loop_io, simulate_closed_loop, steady_state,
+                                      steady_state_solver)
+from .reference_error import (ReferenceClass, ReferenceErrorSets, ReferenceMethod, class_reference_error,
+                              reference_error, reference_windows)
 from .problem import AlphaPolytope, JointProblem, problems_from_series
 from .search import Evaluation, Evaluator, LoopData
 from .result import JointResult

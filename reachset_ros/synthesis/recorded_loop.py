@@ -36,8 +36,9 @@ import numpy as np
 
 from ..errors import InfeasibleError, ReachsetError
 from ..systems.closedloop import close_loop, settling_ticks, stability
+from ..systems.reference_loop import lti_simulate, reference_state
 from .config import SearchSpace
-from .reference_error import ReferenceMethod, lti_simulate, reference_state
+from .reference_error import ReferenceMethod
 from .search import Evaluator
 
 #: relative size (of the signals' magnitude, at least 1) within which a replayed estimate and

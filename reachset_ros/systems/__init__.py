@@ -17,7 +17,11 @@ numpy/scipy:
   and controller parameters (synthesis, model file, ROS parameters), and :func:`check_gains`;
 * :mod:`~reachset_ros.systems.late_reference` - the reference of a tick whose own has not
   come: the newest earlier one carried forward at constant acceleration, its age bounded;
-* :mod:`~reachset_ros.systems.stopping` - the safe stop's law (categories 1 and 2).
+* :mod:`~reachset_ros.systems.stopping` - the safe stop's law (categories 1 and 2);
+* :mod:`~reachset_ros.systems.reference_loop` - the closed loop driven by references
+  (:class:`LoopIO`, its exact simulation :class:`LTIPlan`, :func:`simulate_closed_loop`,
+  :func:`steady_state`): what the reference error of Appendix B and the simulated recordings
+  run.
 
 May import: :mod:`reachset_ros.sets` and :mod:`reachset_ros.errors` only.
 """
@@ -31,6 +35,8 @@ from .observers import (LinearObserver, ObserverState, bilinear, extended_state_
                         high_gain_observer, kalman_filter, observer_output, observer_update,
                         paper_lqg_covariances)
 from .plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
+from .reference_loop import (LoopIO, LTIPlan, lti_simulate, loop_io, reference_inputs, reference_state,
+                             simulate_closed_loop, steady_state, steady_state_solver)
 
 __all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
            "LinearObserver", "ObserverState", "bilinear", "high_gain_observer",
@@ -41,4 +47,6 @@ __all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
            "ClosedLoop", "close_loop", "Stability", "stability", "Analysis", "analyze",
            "radius_coefficients", "center_coefficients", "FeedbackLaw", "closed_loop_tick", "simulate",
            "simulate_ticks", "SETTLING_TOLERANCE", "settling_ticks", "settling_time",
-           "Gains", "check_gains", "DEFAULTS"]
+           "Gains", "check_gains", "DEFAULTS",
+           "LoopIO", "loop_io", "LTIPlan", "lti_simulate", "reference_inputs", "reference_state",
+           "simulate_closed_loop", "steady_state", "steady_state_solver"]

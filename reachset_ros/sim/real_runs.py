@@ -1,5 +1,7 @@
-"""The simulated LWA-4P calibrated to the real one: sets from simulated runs of the real runs' own
-trajectories against the sets from the real runs (issue 16.2).
+"""The simulated LWA-4P along the real runs' trajectories, for calibrating it to the real arm: sets
+from simulated runs of the real runs' own trajectories against the sets from the real runs
+(issue 16.2). Not to be confused with :mod:`reachset_ros.conformance.calibration` (the
+inflation's cross-validation).
 
 Pure core. :func:`simulate_real_runs` drives the simulated arm (:mod:`.simulator`; the
 controller's nominal model is the identified ``config/lwa4p_nominal.yaml``, the simulated
@@ -17,8 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..bags.series import concat_series
-
+from ..bags import concat_series
 from ..conformance.estimators import Estimator
 from ..conformance.identify import identify_sets
 from ..conformance.theorem1 import Theorem1, deviation_extremes_many

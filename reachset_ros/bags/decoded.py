@@ -1,0 +1,99 @@
+"""Messages decoded one by one: whole messages of small bags, and the rows of a topic with ``name[]``.
+
+* :func:`read_messages`: the decoded messages of some topics in log-time order (small bags:
+  the demo's status and safe stops, tests).
+* :func:`read_topic_rows`: per joint, the rows of several float arrays of a topic with
+  ``name[]`` (``/reference``, ``/observer/estimate``; see :mod:`.references`).
+
+Both decode with rosbags' ``deserialize_cdr`` and the typestore of :mod:`.messages`; the
+streamed reading of the large topics is :mod:`.topics`.
+"""
+from __future__ import annotations
+
+from contextlib import ExitStack
+from heapq import merge
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from ..errors import ReachsetError
+from .messages import header_stamp_ns, typestore
+
+
+def _decoded(reader, conns, ts):
+    """``(topic, log_time_ns, msg)`` of the connections ``conns`` of an open rosbags reader,
+    in the order it yields them, each message decoded with ``ts``."""
+    for conn, t, raw in reader.messages(connections=conns):
+        yield conn.topic, t, ts.deserialize_cdr(raw, conn.msgtype)
+
+
+def read_messages(paths, topics=None):
+    """Decoded messages of the bags in log-time order: yields ``(topic, log_time_ns, msg)``.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        rosbag2 directories (MCAP or sqlite3); several bags are merged by log time.
+    topics : sequence of str or None
+        Topics to read (``None``: all); a bag without any of them yields nothing.
+
+    Messages are decoded one by one with rosbags' ``deserialize_cdr`` and the typestore of
+    :mod:`.messages` (every type of the bag layout), so this is for small bags (the demo's
+    status and safe stops, tests); rosbags' exceptions pass unchanged.
+    """
+    ts = typestore()
+    wanted = None if topics is None else set(topics)
+    with ExitStack() as stack:
+        gens = []
+        for p in paths:
+            reader = stack.enter_context(Reader(Path(p)))
+            conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+            if conns:
+                gens.append(_decoded(reader, conns, ts))
+        yield from merge(*gens, key=lambda m: m[1])
+
+
+def read_topic_rows(paths, topic, fields, joints=None):
+    """Per-joint ``(stamps, values (T, len(fields)))`` of a topic with ``name[]`` and float arrays.
+
+    Decoded with rosbags (the bag's own message definitions); sorted by header stamp,
+    duplicate stamps dropped. Returns ``None`` when no bag has the topic.
+    """
+    ts = typestore()
+    cols, found = {}, False
+    for p in paths:
+        path = Path(p)
+        try:
+            with Reader(path) as reader:
+                conns = [c for c in reader.connections if c.topic == topic]
+                if not conns:
+                    continue
+                found = True
+                for _topic, _t, msg in _decoded(reader, conns, ts):
+                    st = header_stamp_ns(msg)
+                    arrs = [np.asarray(getattr(msg, f), float) for f in fields]
+                    for i, nm in enumerate(msg.name):
+                        if joints is not None and nm not in joints:
+                            continue
+                        row = [a[i] if i < len(a) else np.nan for a in arrs]
+                        cols.setdefault(nm, ([], []))
+                        cols[nm][0].append(st)
+                        cols[nm][1].append(row)
+        except ReachsetError:
+            raise
+        except Exception as e:  # rosbags raises many types for damaged files
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise ReachsetError(f"{path}: cannot read {topic} ({type(e).__name__}: {first})") from None
+    if not found:
+        return None
+    out = {}
+    for nm, (st, rows) in cols.items():
+        st = np.asarray(st, np.int64)
+        vals = np.asarray(rows, float).reshape(len(st), len(fields))
+        order = np.argsort(st, kind="stable")
+        st, vals = st[order], vals[order]
+        keep = np.ones(len(st), bool)
+        keep[1:] = st[1:] != st[:-1]
+        out[nm] = (st[keep], vals[keep])
+    return out
