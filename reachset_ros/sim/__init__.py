@@ -23,6 +23,6 @@ limits, effort limits, brakes and the reference box come from the model
 
 May import: :mod:`reachset_ros.robot`, :mod:`reachset_ros.systems` (the control law and the
 closed loop driven by references), :mod:`reachset_ros.conformance` (``real_runs`` identifies
-sets), :mod:`reachset_ros.bags` (to write and read recordings) and :mod:`reachset_ros.errors`;
-never ``synthesis`` or ``fleet``.
+sets), :mod:`reachset_ros.bags` (to write and read recordings), :mod:`reachset_ros.defaults` (the recording gains) and
+:mod:`reachset_ros.errors`; never ``synthesis`` or ``fleet``.
 """

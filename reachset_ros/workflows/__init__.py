@@ -15,6 +15,11 @@ the fault campaign run, as keyword-only functions returning typed, frozen result
 Submodules are imported on use (this package imports none of them: no ROS import here;
 :mod:`.identify` and :mod:`.synthesize` import no rclpy at all).
 
-May import: every subpackage below it (the pure core, :mod:`reachset_ros.nodes`) and
-:mod:`reachset_ros.launch`; only :mod:`reachset_ros.commands` and the CLI import this package.
+May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic`,
+:mod:`reachset_ros.defaults`, :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
+:mod:`reachset_ros.robot`, :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`,
+:mod:`reachset_ros.synthesis`, :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`,
+:mod:`reachset_ros.plots`), the processes (:mod:`reachset_ros.domain`,
+:mod:`reachset_ros.params_file`, :mod:`reachset_ros.launch`) and the ROS adapters
+(:mod:`reachset_ros.nodes`); only the commands and the CLI import this package.
 """
