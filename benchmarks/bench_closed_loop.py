@@ -41,20 +41,20 @@ def run(executor, seconds, workdir, warmup=6.0):
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
-    from reachset_ros import launch
+    from reachset_ros import processes
     from reachset_ros.nodes.common import TICK_QOS
     from reachset_ros.workflows.demo import INITIAL_GAINS
     from reachset_ros.robot import JOINT_NAMES
 
     joints = list(JOINT_NAMES)
     env = dict(os.environ, REACHSET_EXECUTOR=executor)
-    procs = [launch.start("sim_node", {"seed": 1, "realistic": True}, workdir, env=env),
-             launch.start("reference_node", {"seed": 1}, workdir, env=env),
-             launch.start("observer_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
+    procs = [processes.start("sim_node", {"seed": 1, "realistic": True}, workdir, env=env),
+             processes.start("reference_node", {"seed": 1}, workdir, env=env),
+             processes.start("observer_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
                           env=env),
-             launch.start("controller_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
+             processes.start("controller_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
                           env=env),
-             launch.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir, env=env)]
+             processes.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir, env=env)]
     rclpy.init()
     node = Node("bench_closed_loop")
     arrivals = []
@@ -76,7 +76,7 @@ def run(executor, seconds, workdir, warmup=6.0):
         cpu = {p.name: 100.0 * (cpu_seconds(p.proc.pid) - cpu0[p.name]) / wall for p in procs}
         alive = all(p.alive() for p in procs)
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()

@@ -22,7 +22,7 @@ Definitions (all clocks are the host's CLOCK_REALTIME, ``time.time_ns()``):
 * a tick is **late** when its latency exceeds 4 ms (its verdict arrives after the next
   tick's measurement is due); a tick is **missing** when no status with its stamp arrives.
 
-The monitor and the publisher each run in a session of their own (as ``launch.start``
+The monitor and the publisher each run in a session of their own (as ``processes.start``
 and a separate driver would), the burners in a third one: with the kernel's autogroup
 scheduling (``/proc/sys/kernel/sched_autogroup_enabled`` = 1 here) CPU time is shared
 between sessions first, so the burners compete as one program, as intended.
@@ -212,13 +212,13 @@ def main():
         import random
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(101, 200))
     import rclpy
-    from reachset_ros import launch
+    from reachset_ros import processes
     workdir = Path(tempfile.mkdtemp(prefix="bench_monitor_load_"))
     print(f"work directory (logs, per-tick arrays): {workdir}", file=sys.stderr)
     write_model(workdir / "model.yaml")
     rclpy.init()
     listener = Listener()
-    mon = launch.start("monitor_node", {"model_file": str(workdir / "model.yaml"), "max_missing_ticks": 125,
+    mon = processes.start("monitor_node", {"model_file": str(workdir / "model.yaml"), "max_missing_ticks": 125,
                                         "window_dir": str(workdir / "windows")}, workdir)
     results = []
     try:
@@ -242,7 +242,7 @@ def main():
             listener.node.destroy_client(cli)
             listener.stops.clear()
     finally:
-        launch.stop([mon])
+        processes.stop([mon])
         listener.ex.shutdown()
         listener.thread.join(timeout=5)
         listener.node.destroy_node()

@@ -27,7 +27,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from reachset_msgs.msg import PlantInput
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.nodes.common import TICK_QOS
 from reachset_ros.workflows.demo import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
@@ -76,12 +76,12 @@ def main():
     procs = []
     subs = []
     try:
-        launch.start("sim_node", {"seed": 1, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, work,
+        processes.start("sim_node", {"seed": 1, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, work,
                      group=procs)
-        launch.start("reference_node", {"seed": 1}, work, group=procs)
-        launch.start("observer_node", {**common, **INITIAL_GAINS}, work, group=procs)
-        launch.start("controller_node", {**common, **INITIAL_GAINS}, work, group=procs)
-        launch.start("monitor_node", {}, work, group=procs)
+        processes.start("reference_node", {"seed": 1}, work, group=procs)
+        processes.start("observer_node", {**common, **INITIAL_GAINS}, work, group=procs)
+        processes.start("controller_node", {**common, **INITIAL_GAINS}, work, group=procs)
+        processes.start("monitor_node", {}, work, group=procs)
         end = time.monotonic() + 60.0
         while len(arrivals) < 500 and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -111,7 +111,7 @@ def main():
         for p, _ in subs:
             p.kill()
             p.wait()
-        launch.stop(procs)
+        processes.stop(procs)
         node.destroy_node()
         rclpy.try_shutdown()
 

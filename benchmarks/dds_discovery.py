@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.workflows.demo import INITIAL_GAINS, JOINTS, LOCKSTEP_TIMEOUT
 
@@ -38,14 +38,14 @@ def trial(workdir: Path, profile_file: str, seconds: float) -> dict:
     common = {"joints": JOINTS, **INITIAL_GAINS, "allow_uncertified": True}
     procs = []
     try:
-        launch.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir,
+        processes.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, workdir,
                      env=env, group=procs)
-        launch.start("reference_node", {"seed": 3}, workdir, env=env, group=procs)
-        launch.start("observer_node", common, workdir, env=env, group=procs)
-        launch.start("controller_node", common, workdir, env=env, group=procs)
+        processes.start("reference_node", {"seed": 3}, workdir, env=env, group=procs)
+        processes.start("observer_node", common, workdir, env=env, group=procs)
+        processes.start("controller_node", common, workdir, env=env, group=procs)
         time.sleep(seconds)
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
     m = STALE.search(procs[0].log.read_text(errors="replace"))
     if m is None:
         raise RuntimeError(f"no shutdown line in {procs[0].log}: {procs[0].last_log_line()}")
@@ -61,7 +61,7 @@ def main(argv=None):
         empty = Path(tmp) / "no_profile.xml"
         empty.write_text(EMPTY_PROFILES)
         out = {}
-        for name, profile in (("suite", launch.DDS_PROFILES), ("defaults", str(empty))):
+        for name, profile in (("suite", processes.DDS_PROFILES), ("defaults", str(empty))):
             runs = [trial(Path(tmp) / f"{name}{i}", profile, args.seconds) for i in range(args.trials)]
             stale = [r["stale_steps"] for r in runs]
             out[name] = {"stale_steps": stale, "trials_over_5": sum(s > 5 for s in stale),

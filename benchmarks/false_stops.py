@@ -31,7 +31,7 @@ from reachset_msgs.msg import ConformanceStatus
 from reachset_msgs.srv import Synthesize
 from std_srvs.srv import Trigger
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters, stamp_ns
 from reachset_ros.workflows.commander import CORE_TOPICS, JOINTS, SuiteCommander
@@ -61,7 +61,7 @@ def _record_run(driver, path, *, node, seconds):
     """One recording of the core topics, ``seconds`` of simulated time; its path."""
     rec = driver.record(path, CORE_TOPICS, node_name=node, wait_s=120.0)
     driver.spin_sim(seconds)
-    launch.stop([rec])
+    processes.stop([rec])
     print(f"recorded {path}", file=sys.stderr, flush=True)
     return path
 
@@ -85,12 +85,12 @@ def main():
     out = {"domain": domain, "workdir": str(work), "load_average_before": load0}
     try:
         common = {"joints": JOINTS, "allow_uncertified": True}
-        launch.start("sim_node", {"seed": 7, "realistic": True, "lockstep_timeout": 0.3}, work, group=procs)
-        launch.start("reference_node", {"seed": 7}, work, group=procs)
-        launch.start("observer_node", dict(common), work, group=procs)
-        launch.start("controller_node", dict(common, wait_for_monitor=True), work, group=procs)
-        launch.start("monitor_node", {"window_dir": str(work / "windows")}, work, group=procs)
-        launch.start("synthesis_node", {"workdir": str(work / "synthesis")}, work, group=procs)
+        processes.start("sim_node", {"seed": 7, "realistic": True, "lockstep_timeout": 0.3}, work, group=procs)
+        processes.start("reference_node", {"seed": 7}, work, group=procs)
+        processes.start("observer_node", dict(common), work, group=procs)
+        processes.start("controller_node", dict(common, wait_for_monitor=True), work, group=procs)
+        processes.start("monitor_node", {"window_dir": str(work / "windows")}, work, group=procs)
+        processes.start("synthesis_node", {"workdir": str(work / "synthesis")}, work, group=procs)
         bags = [_record_run(driver, work / f"run{i + 1}", node=f"recorder_{i + 1}", seconds=a.train)
                 for i in range(a.runs)]
         model = work / "model.yaml"
@@ -152,7 +152,7 @@ def main():
             "load_average_1min_mean": sum(loads) / max(len(loads), 1)})
         out["false_stops"] = len(out["safe_stops"])
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         driver.own_executor.shutdown(timeout_sec=1.0)
         driver.destroy_node()
         rclpy.try_shutdown()

@@ -11,7 +11,7 @@ simulated arm and its references), :mod:`~reachset_ros.fleet` (the per-bag tasks
 run on Dask distributed, and their exact merges). ROS 2 nodes in :mod:`reachset_ros.nodes` are thin
 adapters over it; :mod:`reachset_ros.cli` and :mod:`reachset_ros.commands` are the
 ``reachset`` command line, :mod:`reachset_ros.plots` its figures. Processes and their
-environment: :mod:`reachset_ros.launch` (node processes: start, stop, signals),
+environment: :mod:`reachset_ros.processes` (node processes: start, stop, signals),
 :mod:`reachset_ros.domain` (a fresh DDS domain), :mod:`reachset_ros.params_file` (ROS 2
 parameter files).
 """

@@ -53,7 +53,7 @@ def main(argv=None):
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         print(f"reachset {args.command}: error: {msg}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as e:   # Ctrl-C, or launch.Interrupted (SIGINT/SIGTERM) after children stopped
+    except KeyboardInterrupt as e:   # Ctrl-C, or processes.Interrupted (SIGINT/SIGTERM) after children stopped
         return 128 + getattr(e, "signum", signal.SIGINT)
     return int(rc or 0)
 

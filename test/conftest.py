@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from reachset_ros.launch import use_dds_profiles
+from reachset_ros.processes import use_dds_profiles
 
 # Real DDS, but only on this host and in a domain of our own, so that parallel test runs
 # (and other ROS 2 programs on the machine) do not see each other.

@@ -2,7 +2,7 @@
 
 Every module under ``reachset_ros/`` is parsed, function-local imports included, and checked:
 
-* (a) layers: a *unit* (a subpackage, or a top-level module such as ``errors`` or ``launch``)
+* (a) layers: a *unit* (a subpackage, or a top-level module such as ``errors`` or ``processes``)
   imports from reachset_ros only the units :data:`ALLOWED` lists for it; the table mirrors the
   ``May import:`` line of each subpackage's docstring (checked too, so the two cannot drift);
 * (b) only ``nodes`` and ``workflows`` import rclpy or ROS interface packages;
@@ -12,7 +12,7 @@ Every module under ``reachset_ros/`` is parsed, function-local imports included,
 * (d) no module named ``*driver*`` under ``nodes/`` (workflows are not nodes).
 
 Bottom to top: errors, atomic, domain, params_file (leaves) -> sets -> systems -> robot,
-conformance -> bags -> synthesis -> fleet -> sim -> launch (the process supervisor) -> nodes
+conformance -> bags -> synthesis -> fleet -> sim -> processes (the process supervisor) -> nodes
 -> workflows -> commands -> cli; ``plots`` (figures) sits above synthesis, below workflows.
 The ``KNOWN_*`` sets (empty since issue 33 landed) are for a violation accepted while it is
 being fixed; each entry must still be a violation (a fixed one fails
@@ -36,7 +36,7 @@ MAX_POSITIONAL = 8
 _LEAVES = {"errors", "atomic", "defaults"}
 #: the pure core below the process and ROS layers
 _CORE = _LEAVES | {"sets", "systems", "robot", "conformance", "bags", "synthesis", "fleet", "sim"}
-_PROCESS = {"domain", "params_file", "launch"}
+_PROCESS = {"domain", "params_file", "processes"}
 
 #: unit -> the reachset_ros units it may import (its own unit always). For the pure core and the
 #: leaves exactly what they import today; the layers above the core (nodes, workflows, commands)
@@ -59,7 +59,7 @@ ALLOWED = {
     "fleet": {"errors", "robot", "conformance", "bags", "synthesis"},
     "sim": {"errors", "defaults", "systems", "robot", "conformance", "bags"},
     "plots": {"errors", "conformance", "bags", "synthesis"},
-    "launch": set(),
+    "processes": set(),
     "nodes": _CORE | _PROCESS,
     "workflows": _CORE | _PROCESS | {"nodes", "plots"},
     "commands": _CORE | _PROCESS | {"nodes", "plots", "workflows"},

@@ -242,7 +242,7 @@ def test_monitor_node_with_effort_input_stops_where_check_finds_the_first_violat
     of the same messages, it is after the onset, and it is the safe stop."""
     from helpers import Bus
     from sensor_msgs.msg import JointState
-    from reachset_ros import launch
+    from reachset_ros import processes
     from reachset_ros.nodes.common import stamp_ns, to_stamp
     d, runs, model = lwa_bags
     names = list(model.joint_names)
@@ -265,7 +265,7 @@ def test_monitor_node_with_effort_input_stops_where_check_finds_the_first_violat
     first_check = min(j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"])
     assert first_check > stamps[onset]
     bus = Bus()
-    proc = launch.start("monitor_node", {"model_file": str(tmp_path / "m.yaml"), "input_source": "effort",
+    proc = processes.start("monitor_node", {"model_file": str(tmp_path / "m.yaml"), "input_source": "effort",
                                          "robot_urdf": str(DEFAULT_URDF), "robot_params": str(NOMINAL),
                                          "max_missing_ticks": 10000, "window_dir": str(tmp_path / "w")}, tmp_path)
     try:
@@ -281,7 +281,7 @@ def test_monitor_node_with_effort_input_stops_where_check_finds_the_first_violat
         assert bus.wait(lambda: bus.active_stops(), 30), proc.log.read_text()[-2000:]
         assert bus.wait(lambda: any(stamp_ns(s.header.stamp) >= first_check for s in list(bus.status)), 30)
     finally:
-        launch.stop([proc])
+        processes.stop([proc])
         bus.close()
     verdicts = sorted((stamp_ns(s.header.stamp), min(s.margin) >= 0) for s in bus.status if len(s.margin))
     first_monitor = min(st for st, ok in verdicts if not ok and st > stamps[200])     # after the warm-up

@@ -14,7 +14,7 @@ from reachset_msgs.msg import BrakeCommand, ConformanceStatus, JointEstimate, Jo
 from sensor_msgs.msg import JointState
 
 from helpers import JOINTS, PUB_QOS, Recorder, stream, write_model
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.nodes.common import SAFE_STOP_QOS, to_stamp
 
 
@@ -60,9 +60,9 @@ def test_monitor_lifecycle(ros, tmp_path):
             pi_pub.publish(p)
             time.sleep(0.002)
 
-    bad = launch.start("monitor_lifecycle_node", {"model_file": str(tmp_path / "missing.yaml"),
+    bad = processes.start("monitor_lifecycle_node", {"model_file": str(tmp_path / "missing.yaml"),
                                                   "window_dir": str(tmp_path / "w")}, tmp_path, node_name="bad_mon")
-    mon = launch.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
+    mon = processes.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
                                                   "window_dir": str(tmp_path / "w")}, tmp_path,
                        node_name="monitor_node")
     try:
@@ -72,7 +72,7 @@ def test_monitor_lifecycle(ros, tmp_path):
         assert "configure failed" in bad.log.read_text() and "missing.yaml" in bad.log.read_text()
         # an unconfigured monitor repeats its latched stop every tick (issue 17.2): it would hold
         # a robot; it goes before the other one's /safe_stop states are read
-        launch.stop([bad])
+        processes.stop([bad])
 
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_UNCONFIGURED
         stops = rec.msgs["safe_stop"]
@@ -97,7 +97,7 @@ def test_monitor_lifecycle(ros, tmp_path):
         time.sleep(0.5)
         assert len(status) == n                                      # inactive: nothing checked
     finally:
-        launch.stop([bad, mon])
+        processes.stop([bad, mon])
         rec.close()
 
 
@@ -126,15 +126,15 @@ def test_controller_lifecycle(ros, tmp_path):
 
     params = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
               "stop_category": 1}
-    bad = launch.start("controller_lifecycle_node", {**params, "allow_uncertified": False}, tmp_path,
+    bad = processes.start("controller_lifecycle_node", {**params, "allow_uncertified": False}, tmp_path,
                        node_name="bad_ctl")
-    ctl = launch.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
+    ctl = processes.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
     try:
         assert state(ros, "bad_ctl") == State.PRIMARY_STATE_UNCONFIGURED
         assert not transition(ros, "bad_ctl", Transition.TRANSITION_CONFIGURE)
         assert state(ros, "bad_ctl") == State.PRIMARY_STATE_UNCONFIGURED
         assert "configure failed" in bad.log.read_text()
-        launch.stop([bad])
+        processes.stop([bad])
 
         assert state(ros, "controller_node") == State.PRIMARY_STATE_UNCONFIGURED
         tick()
@@ -162,5 +162,5 @@ def test_controller_lifecycle(ros, tmp_path):
         assert rec.wait(lambda: all(brakes[-1][1].engage), 20)              # deactivate: brakes and hold
         assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
     finally:
-        launch.stop([bad, ctl])
+        processes.stop([bad, ctl])
         rec.close()

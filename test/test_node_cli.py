@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import rclpy
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.nodes.common import set_remote_parameters
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,9 +33,9 @@ def test_help_prints_usage_and_starts_nothing(script):
 
 
 def test_start_summary_and_read_only_start_up_parameters(tmp_path):
-    procs = [launch.start("sim_node", {"seed": 5}, tmp_path),
-             launch.start("observer_node", {"allow_uncertified": True}, tmp_path),
-             launch.start("monitor_node", {"window_dir": str(tmp_path / "w")}, tmp_path)]
+    procs = [processes.start("sim_node", {"seed": 5}, tmp_path),
+             processes.start("observer_node", {"allow_uncertified": True}, tmp_path),
+             processes.start("monitor_node", {"window_dir": str(tmp_path / "w")}, tmp_path)]
     rclpy.init()
     node = rclpy.create_node("node_cli_test")
     try:
@@ -59,4 +59,4 @@ def test_start_summary_and_read_only_start_up_parameters(tmp_path):
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        launch.stop(procs)
+        processes.stop(procs)

@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 
 from helpers import JOINTS, PUB_QOS, Recorder, plant_stream, wait_until, write_model
 from reachset_ros import conformance as cf
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.bags import read_messages
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.estimators import Estimator
@@ -40,7 +40,7 @@ def spin_until(node, cond, timeout):
 
 def test_controller_gains_through_parameter_service(ros, tmp_path):
     model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
-    ctl = launch.start("controller_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
+    ctl = processes.start("controller_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
                                            "omega": [10.0], "zeta": [1.0]}, tmp_path)
     got = []
     ros.create_subscription(PlantInput, "plant_input", lambda m: got.append(m), TICK_QOS)
@@ -103,14 +103,14 @@ def test_controller_gains_through_parameter_service(ros, tmp_path):
             spin_until(ros, reached, 0.05)
         assert reached()
     finally:
-        launch.stop([ctl])
+        processes.stop([ctl])
 
 
 def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
     """The reference may arrive after the estimate of the same stamp (two nodes, two paths):
     the controller waits for it; without one it uses the newest earlier reference, carried
     forward to the estimate's stamp (systems.late_reference)."""
-    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0],
+    ctl = processes.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0],
                                            "reference_timeout": 0.2, "allow_uncertified": True}, tmp_path)
     got = {}
     ros.create_subscription(PlantInput, "plant_input", lambda m: got.setdefault(
@@ -150,7 +150,7 @@ def test_controller_pairs_estimate_and_reference_by_stamp(ros, tmp_path):
         assert fwd[0] != ref[0]
         assert got[stamp2] == pytest.approx(law(*fwd), abs=1e-12)
     finally:
-        launch.stop([ctl])
+        processes.stop([ctl])
 
 
 def identified_model(path, horizon=25):
@@ -172,7 +172,7 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
     # max_missing_ticks 125 (0.5 s, the demo's): with 25 (100 ms of wall time) a stall of this
     # test's publishing loop under a loaded fresh-clone `make test` was a missing_data stop
     # before the injected fault (seen once at fa62d87)
-    mon = launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125, "reset_clean_ticks": 0,
+    mon = processes.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125, "reset_clean_ticks": 0,
                                         "window_dir": str(tmp_path / "windows")}, tmp_path)
     status, stops = [], []
     # a listener spun by its own executor thread, so that no status message is missed
@@ -247,7 +247,7 @@ def test_monitor_safe_stop_reset_latch_and_watchdog(ros, tmp_path):
         assert status[n_before].tick == 1          # the tick counter restarts at the reset
         assert [s for s in stops if s.active][0].kind == "missing_data"
     finally:
-        launch.stop([mon])
+        processes.stop([mon])
         ex.shutdown()
         listener.destroy_node()
 
@@ -279,11 +279,11 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
     rec = Recorder("cat1_listener", {"joint_states": JointState, "brake_command": BrakeCommand})
     bag = tmp_path / "stop_bag"
-    procs = [launch.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
-             launch.start("reference_node", {"seed": 3}, tmp_path),
-             launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", dict(common, wait_for_monitor=True), tmp_path)]
-    recorder = launch.start("recorder_node", {"output": str(bag), "topics": [JOINT_STATES, BRAKE_TOPIC,
+    procs = [processes.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
+             processes.start("reference_node", {"seed": 3}, tmp_path),
+             processes.start("observer_node", common, tmp_path),
+             processes.start("controller_node", dict(common, wait_for_monitor=True), tmp_path)]
+    recorder = processes.start("recorder_node", {"output": str(bag), "topics": [JOINT_STATES, BRAKE_TOPIC,
                                                                              SAFE_STOP_TOPIC]}, tmp_path)
     try:
         js = rec.msgs["joint_states"]
@@ -301,8 +301,8 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
         t_all = min(_ns(m) for _, m in list(rec.msgs["brake_command"]) if all(m.engage))
         assert rec.wait(lambda: _ns(js[-1][1]) >= t_all + 2_000_000_000, 60)
     finally:
-        launch.stop([recorder])
-        launch.stop(procs)
+        processes.stop([recorder])
+        processes.stop(procs)
         rec.close()
         ros.destroy_publisher(stop_pub)
     t, q, qd, brakes, stops = [], [], [], [], []
@@ -353,10 +353,10 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     # reader's side of discovery came seconds later)
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
-    procs = [launch.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
-             launch.start("reference_node", {"seed": 2}, tmp_path),
-             launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2), tmp_path)]
+    procs = [processes.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
+             processes.start("reference_node", {"seed": 2}, tmp_path),
+             processes.start("observer_node", common, tmp_path),
+             processes.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2), tmp_path)]
     try:
         js = rec.msgs["joint_states"]
 
@@ -427,7 +427,7 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
         assert np.all(drift <= 0.03), drift
         assert all(p.alive() for p in procs)
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         rec.close()
         ros.destroy_publisher(stop_pub)
 
@@ -453,18 +453,18 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     rec = Recorder("bagcheck_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop,
                                          "sim/fault_onset": Header})
     common = {"joints": ALL_JOINTS, **INITIAL_GAINS, "allow_uncertified": True}   # no model: initial gains
-    procs = [launch.start("recorder_node", {"output": str(bag), "topics": MONITOR_TOPICS}, tmp_path),
-             launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
+    procs = [processes.start("recorder_node", {"output": str(bag), "topics": MONITOR_TOPICS}, tmp_path),
+             processes.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
                                            "window_dir": str(tmp_path / "windows")}, tmp_path),
              # lockstep timeout 0.3 s (the demo's, default 50 ms): once, in a loaded `make test`, the
              # data left the sets 640 ms before the fault (check and monitor agreed: a real
              # violation); a simulator that holds a stale command, an input the recorded
              # /plant_input does not show, is the known way to that (docs/reliability.md, stall
              # diagnosis) -- not confirmed, the run's logs were gone
-             launch.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
-             launch.start("reference_node", {"seed": 3}, tmp_path),
-             launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", common, tmp_path)]
+             processes.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
+             processes.start("reference_node", {"seed": 3}, tmp_path),
+             processes.start("observer_node", common, tmp_path),
+             processes.start("controller_node", common, tmp_path)]
     try:
         status = rec.msgs["conformance/status"]
         assert rec.wait(lambda: len(status) > 0 and "recorder_node" in ros.get_node_names(), 90), \
@@ -485,10 +485,10 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
         assert rec.wait(lambda: any(m.active for _, m in rec.msgs["safe_stop"]), 30), \
             [(p.name, p.log.read_text()[-1500:]) for p in procs]
         time.sleep(0.5)
-        launch.stop(procs[:1])                      # the recorder closes the bag
+        processes.stop(procs[:1])                      # the recorder closes the bag
         assert procs[0].proc.returncode == 0 and (bag / "metadata.yaml").is_file(), procs[0].log.read_text()
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         rec.close()
     out = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "check", str(bag), "--model", str(model),
                           "--json"], capture_output=True, text=True, timeout=300)
@@ -525,7 +525,7 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
     parameter service freezes it at the end point of the move under way."""
     from reachset_ros.sim.reference import ReferenceGenerator
     from reachset_ros.robot import JOINT_NAMES
-    node = launch.start("reference_node", {"seed": 4}, tmp_path)
+    node = processes.start("reference_node", {"seed": 4}, tmp_path)
     got = {}
     ros.create_subscription(JointReference, "reference", lambda m: got.setdefault(
         m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, m), TICK_QOS)
@@ -562,7 +562,7 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
         assert all(list(m.position) == list(rest[0].position) and not any(m.velocity) for m in rest)
         assert list(rest[0].position) == gen.current_move(400 * 0.004).q1.tolist()
     finally:
-        launch.stop([node])
+        processes.stop([node])
 
 
 @pytest.mark.parametrize("params, words", [
@@ -573,12 +573,12 @@ def test_reference_node_names_by_joint_and_holds(ros, tmp_path):
 def test_controller_refuses_to_start_with_a_configuration_it_would_refuse_later(tmp_path, params, words):
     """The start-up parameters pass the same checks as a change through the parameter
     service: else the node exits with status 2 and one line naming the reason, never drives."""
-    ctl = launch.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "allow_uncertified": True, **params},
+    ctl = processes.start("controller_node", {"joints": JOINTS, "u_max": [26.0, 26.0], "allow_uncertified": True, **params},
                        tmp_path)
     try:
         assert ctl.proc.wait(timeout=60) == 2
     finally:
-        launch.stop([ctl])
+        processes.stop([ctl])
     lines = [ln for ln in ctl.log.read_text().splitlines() if ln.strip()]
     assert len(lines) == 1, lines
     assert lines[0].startswith("ControllerNode: error: ") and words in lines[0], lines[0]
@@ -593,26 +593,26 @@ def test_recorder_on_sim_time_logs_at_the_simulations_clock(ros, tmp_path):
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="latched before the simulation"))
     bag = tmp_path / "simtime"
-    rec = launch.start("recorder_node", {"output": str(bag), "topics": ["/joint_states", "/safe_stop"],
+    rec = processes.start("recorder_node", {"output": str(bag), "topics": ["/joint_states", "/safe_stop"],
                                          "use_sim_time": True}, tmp_path)
     sim = None
     try:
         assert spin_until(ros, lambda: stop_pub.get_subscription_count() > 0, 60), rec.log.read_text()[-800:]
         time.sleep(0.5)                              # the latched message is delivered, no /clock yet
         t_launch = time.time_ns()                    # the simulation's stamps start later than this
-        sim = launch.start("sim_node", {"realistic": False, "lockstep_timeout": 0.04}, tmp_path)
+        sim = processes.start("sim_node", {"realistic": False, "lockstep_timeout": 0.04}, tmp_path)
         got = []
         sub = ros.create_subscription(JointState, "joint_states", got.append, TICK_QOS)
         # 120 ticks (about 5 s here): a loaded CI run once had the recorder match the
         # simulator 1.3 s after this test did, so it saw only 28 of 61 ticks
         assert spin_until(ros, lambda: len(got) > 120, 90), sim.log.read_text()[-800:]
         ros.destroy_subscription(sub)
-        launch.stop([sim])
+        processes.stop([sim])
         time.sleep(2.0)                              # the recorder works off what it has received
-        launch.stop([rec])
+        processes.stop([rec])
         assert rec.proc.returncode == 0, rec.log.read_text()[-800:]
     finally:
-        launch.stop([rec] + ([sim] if sim else []))
+        processes.stop([rec] + ([sim] if sim else []))
         ros.destroy_publisher(stop_pub)
     js, stops = [], []
     for topic, t, m in read_messages([bag]):
@@ -749,8 +749,8 @@ def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tm
     starts a transient the controller reports with the closed loop's settling time; a
     reference with |qdd_d| > u_ff_bound is flagged on /diagnostics, and still controlled by the law."""
     params = {"joints": ALL_JOINTS, **LOOP_KINDS[0], **LOOP_GAINS, "allow_uncertified": True}
-    obs_p = launch.start("observer_node", params, tmp_path)
-    ctl_p = launch.start("controller_node", {**params, "reference_timeout": 1.0, "u_ff_bound": 2.0}, tmp_path)
+    obs_p = processes.start("observer_node", params, tmp_path)
+    ctl_p = processes.start("controller_node", {**params, "reference_timeout": 1.0, "u_ff_bound": 2.0}, tmp_path)
     rec = Recorder("loop_listener", {"plant_input": PlantInput, "observer/estimate": JointEstimate,
                                      "diagnostics": DiagnosticArray})
     js_pub = ros.create_publisher(JointState, "joint_states", PUB_QOS)
@@ -832,7 +832,7 @@ def test_observer_and_controller_nodes_run_the_certified_loop_to_the_bit(ros, tm
         assert kv["reference_out_of_class"] == "1" and kv["reference_out_of_class_joint"] == ALL_JOINTS[2]
         assert "out of class" in msg and "u_ff_bound" in msg
     finally:
-        launch.stop([ctl_p, obs_p])
+        processes.stop([ctl_p, obs_p])
         rec.close()
         ros.destroy_publisher(js_pub)
         ros.destroy_publisher(ref_pub)
@@ -865,11 +865,11 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     # command, an input /plant_input does not show, is the known way to that; with 50 ms the
     # simulator took one after the start-up in 1 of 18 runs here (those runs' logs kept; the
     # failing runs' logs were gone). On failure the assertion now shows the simulator's lines.
-    procs = [launch.start("sim_node", {"seed": 4, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
-             launch.start("reference_node", {"seed": 4}, tmp_path),
-             launch.start("observer_node", common, tmp_path),
-             launch.start("controller_node", dict(common, wait_for_monitor=True), tmp_path),
-             launch.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
+    procs = [processes.start("sim_node", {"seed": 4, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
+             processes.start("reference_node", {"seed": 4}, tmp_path),
+             processes.start("observer_node", common, tmp_path),
+             processes.start("controller_node", dict(common, wait_for_monitor=True), tmp_path),
+             processes.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
                                            "window_dir": str(tmp_path / "windows")}, tmp_path)]
     try:
         js, stops, status = rec.msgs["joint_states"], rec.msgs["safe_stop"], rec.msgs["conformance/status"]
@@ -923,7 +923,7 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
         assert all(p.alive() for p in procs)
         assert "restarts from the arm's position" in procs[1].log.read_text()
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         rec.close()
 
 

@@ -21,7 +21,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from reachset_msgs.msg import JointEstimate, JointReference, SafeStop
 
 from helpers import HORIZON, JOINTS, Bus, stream, write_model
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.watches import FaultEvent, TickEvent
 from reachset_ros.errors import ReachsetError
@@ -479,14 +479,14 @@ def monitor(bus, tmp_path_factory):
     # reset_clean_ticks 0: the tests reset the latched stop as a set-up step, with no data
     # flowing; the rule that a reset waits until the stop's condition has cleared is tested
     # by TestResetNeedsClearedCondition
-    proc = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000, "reset_clean_ticks": 0,
+    proc = processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000, "reset_clean_ticks": 0,
                                          "window_dir": str(d / "windows")}, d)
     try:
         assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
                         and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
         yield proc, path, d
     finally:
-        launch.stop([proc])
+        processes.stop([proc])
 
 
 class TestMonitorNode:
@@ -850,7 +850,7 @@ def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, 
               "allow_uncertified": model is None}
     if model is not None:
         params["model_file"] = str(model)
-    return launch.start("controller_node", params, d)
+    return processes.start("controller_node", params, d)
 
 
 def tracking_law(omega, zeta, q=Q_TEST, qd=(0.0, 0.0)):
@@ -920,7 +920,7 @@ def controller(bus, tmp_path_factory):
                         and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
         yield proc, model, d
     finally:
-        launch.stop([proc])
+        processes.stop([proc])
 
 
 class TestControllerNode:
@@ -1090,7 +1090,7 @@ class TestSimulatorReportsStaleCommands:
         and logged, and after ``drive_watchdog_steps`` of them in a row the simulated drives
         engage every holding brake (``drive_watchdog``), as a drive's communication watchdog
         does. Before, the count appeared only in the log at shutdown."""
-        sim = launch.start("sim_node", {"seed": 1, "lockstep_timeout": 0.02, "drive_watchdog_steps": 3,
+        sim = processes.start("sim_node", {"seed": 1, "lockstep_timeout": 0.02, "drive_watchdog_steps": 3,
                                         "publish_clock": False}, tmp_path)
         try:
             name = "reachset_ros: simulator"
@@ -1102,7 +1102,7 @@ class TestSimulatorReportsStaleCommands:
             log = sim.log.read_text()
             assert "stepped on a stale command" in log and "drive watchdog: 3 consecutive steps" in log
         finally:
-            launch.stop([sim])
+            processes.stop([sim])
 
 
 class TestAbsurdCommand:
@@ -1135,7 +1135,7 @@ class TestAbsurdCommand:
             assert c["bad_command"] == 1, c
         finally:
             bus.listener.destroy_subscription(bsub)
-            launch.stop([ctl])
+            processes.stop([ctl])
 
 
 class TestObserverNode:
@@ -1145,7 +1145,7 @@ class TestObserverNode:
         est = []
         sub = bus.listener.create_subscription(JointEstimate, "observer/estimate", est.append,
                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
-        obs = launch.start("observer_node", {"joints": JOINTS, "allow_uncertified": True}, tmp_path)
+        obs = processes.start("observer_node", {"joints": JOINTS, "allow_uncertified": True}, tmp_path)
         try:
             # /plant_input: the observer and this test's own listener
             assert bus.wait(lambda: bus.js.get_subscription_count() == 1 and bus.pi.get_subscription_count() == 2,
@@ -1170,7 +1170,7 @@ class TestObserverNode:
             assert c["bad_sample"] >= 3, c
             assert obs.alive()
         finally:
-            launch.stop([obs])
+            processes.stop([obs])
             bus.listener.destroy_subscription(sub)
 
 
@@ -1198,7 +1198,7 @@ class TestWaitForMonitor:
             assert ctl.alive()
             assert "safe stop inactive: tracking (reset: monitor started" in ctl.log.read_text()
         finally:
-            launch.stop([ctl])
+            processes.stop([ctl])
             if pub is not None:
                 bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
 
@@ -1256,7 +1256,7 @@ class TestSafeStopLatch:
             assert late and late[-1].active and late[-1].kind == "name_mismatch"
             # the controller restarts: the new one (waiting for the monitor's state, as it
             # should on a robot) brakes from its first output on
-            launch.stop([a])
+            processes.stop([a])
             assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
             b = start_controller(tmp_path / "b", wait_for_monitor=True)
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
@@ -1279,7 +1279,7 @@ class TestSafeStopLatch:
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15)
             assert a.proc.returncode is not None and b.alive() and mproc.alive()
         finally:
-            launch.stop([a, b])
+            processes.stop([a, b])
 
 
 def outputs_match(got, expected):
@@ -1298,7 +1298,7 @@ class TestMonitorLost:
         track, brake = tracking_law(10.0, 1.0, qd=qd), braking_law(Q_TEST, qd, np.array([26.0, 26.0]))
         assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
         path = write_model(tmp_path / "m.yaml")
-        mon = launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+        mon = processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
                                             "reset_clean_ticks": 0, "window_dir": str(tmp_path / "w")}, tmp_path)
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True)
         pub = None
@@ -1323,7 +1323,7 @@ class TestMonitorLost:
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1), qd=qd), track), 15), ctl.log.read_text()
             assert ctl.alive() and mon.alive()
         finally:
-            launch.stop([ctl, mon])
+            processes.stop([ctl, mon])
             if pub is not None:
                 bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
 
@@ -1331,7 +1331,7 @@ class TestMonitorLost:
 def start_stop_monitor(tmp_path):
     """The monitor node on a two-joint model, with a missing-data limit the tests never reach."""
     path = write_model(tmp_path / "m.yaml")
-    return path, launch.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
+    return path, processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
                                                "window_dir": str(tmp_path / "windows")}, tmp_path)
 
 
@@ -1378,7 +1378,7 @@ class TestResetNeedsClearedCondition:
             assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset")
             assert "reset refused" in proc.log.read_text() and proc.alive()
         finally:
-            launch.stop([proc])
+            processes.stop([proc])
 
 
 class TestPrivilegedOperations:
@@ -1430,7 +1430,7 @@ class TestPrivilegedOperations:
             assert "clients of /controller_node/set_parameters" in glines[0]   # names as discovery has them
         finally:
             bus.caller.destroy_client(cli)
-            launch.stop([ctl, mon])
+            processes.stop([ctl, mon])
 
 
     def test_the_sros2_policy_grants_the_privileged_services_to_one_enclave_each(self):
@@ -1462,13 +1462,13 @@ class TestPrivilegedOperations:
         (keystore / "enclaves").mkdir(parents=True)
         env = dict(os.environ, ROS_SECURITY_ENABLE="true", ROS_SECURITY_STRATEGY="Enforce",
                    ROS_SECURITY_KEYSTORE=str(keystore))
-        proc = launch.start("monitor_node", {}, tmp_path, env=env)
+        proc = processes.start("monitor_node", {}, tmp_path, env=env)
         try:
             assert wait_exit(proc, 60), "the monitor started without credentials"
             assert proc.exit_status() not in (0, None)
             assert "doesn't have the security libraries" in proc.log.read_text(), proc.log.read_text()
         finally:
-            launch.stop([proc])
+            processes.stop([proc])
 
 
 class TestOneGateForThePair:
@@ -1478,7 +1478,7 @@ class TestOneGateForThePair:
 
     def test_observer_refuses_gains_whose_pair_is_not_certified(self, bus, tmp_path):
         model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
-        obs = launch.start("observer_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
+        obs = processes.start("observer_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
                                              "omega": [10.0], "zeta": [1.0]}, tmp_path)
         try:
             assert bus.wait(lambda: bus.js.get_subscription_count() >= 1, 30), obs.log.read_text()
@@ -1491,14 +1491,14 @@ class TestOneGateForThePair:
             assert ok, why
             assert obs.alive()
         finally:
-            launch.stop([obs])
+            processes.stop([obs])
 
     @pytest.mark.parametrize("node", ["observer_node", "controller_node"])
     def test_without_a_model_gains_need_allow_uncertified(self, tmp_path, node):
-        p = launch.start(node, {"joints": JOINTS, "omega": [40.0]}, tmp_path)
+        p = processes.start(node, {"joints": JOINTS, "omega": [40.0]}, tmp_path)
         try:
             assert p.proc.wait(timeout=60) == 2
         finally:
-            launch.stop([p])
+            processes.stop([p])
         log = p.log.read_text()
         assert "no model covers these gains" in log and "allow_uncertified" in log, log[-1500:]

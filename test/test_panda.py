@@ -76,7 +76,7 @@ def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
     the safe stop."""
     from sensor_msgs.msg import JointState
     from helpers import Bus
-    from reachset_ros import launch
+    from reachset_ros import processes
     from reachset_ros.nodes.common import stamp_ns, to_stamp
     d, _, fault = panda
     if not (d / "model.yaml").is_file():
@@ -85,7 +85,7 @@ def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
     first = min(j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"])
     msgs = [m for _, _, m in bags.read_messages([d / "fault"], ["/joint_states"])]
     bus = Bus()
-    proc = launch.start("monitor_node", {"model_file": str(d / "model.yaml"), "input_source": "effort",
+    proc = processes.start("monitor_node", {"model_file": str(d / "model.yaml"), "input_source": "effort",
                                          "robot_urdf": ROBOT, "robot_locked_joints": LOCK.split(","),
                                          "max_missing_ticks": 10000, "window_dir": str(tmp_path / "w")}, tmp_path)
     try:
@@ -100,7 +100,7 @@ def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
                 break
         assert bus.wait(lambda: bus.active_stops(), 30), proc.log.read_text()[-2000:]
     finally:
-        launch.stop([proc])
+        processes.stop([proc])
         bus.close()
     stop = bus.active_stops()[0]
     assert stop.kind == "violation" and stamp_ns(stop.header.stamp) == first

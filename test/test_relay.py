@@ -11,7 +11,7 @@ import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.errors import ReachsetError
 from reachset_ros.nodes.common import set_remote_parameters, stamp_ns, to_stamp
 from reachset_ros.sim.link import Link, LinkFault
@@ -54,7 +54,7 @@ def test_link_drops_every_nth_and_a_seeded_share():
 
 # ------------------------------------------------------------------ the node, over DDS
 def test_relay_node_drops_and_delays_on_demand_and_keeps_the_order(ros, tmp_path):
-    proc = launch.start("relay_node", {"input_topic": "/relay_test/in", "output_topic": "/relay_test/out",
+    proc = processes.start("relay_node", {"input_topic": "/relay_test/in", "output_topic": "/relay_test/out",
                                        "seed": 1}, tmp_path)
     rec = Recorder("relay_test_rec", {"/relay_test/out": JointState})
     pub = ros.create_publisher(JointState, "/relay_test/in", PUB_QOS)
@@ -101,5 +101,5 @@ def test_relay_node_drops_and_delays_on_demand_and_keeps_the_order(ros, tmp_path
     finally:
         rec.close()
         ros.destroy_publisher(pub)
-        launch.stop([proc])
+        processes.stop([proc])
     assert "dropped 10" in proc.log.read_text()

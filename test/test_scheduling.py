@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.errors import ReachsetError
 from reachset_ros.nodes.scheduling import set_realtime, thread_policies
 
@@ -44,8 +44,8 @@ def test_every_thread_of_a_node_runs_at_the_priority_it_was_given(tmp_path):
     process is SCHED_FIFO at the priority; a node without the parameter keeps the default."""
     procs = []
     try:
-        rt = launch.start("observer_node", {"realtime_priority": 20, "allow_uncertified": True}, tmp_path, group=procs)
-        plain = launch.start("observer_node", {"allow_uncertified": True}, tmp_path, node_name="plain_observer", group=procs)
+        rt = processes.start("observer_node", {"realtime_priority": 20, "allow_uncertified": True}, tmp_path, group=procs)
+        plain = processes.start("observer_node", {"allow_uncertified": True}, tmp_path, node_name="plain_observer", group=procs)
         assert _wait_log(rt, "SCHED_FIFO priority 20"), rt.log.read_text()[-800:]
         assert _wait_log(plain, "up: subscribes"), plain.log.read_text()[-800:]
         pol = thread_policies(rt.proc.pid)
@@ -53,7 +53,7 @@ def test_every_thread_of_a_node_runs_at_the_priority_it_was_given(tmp_path):
         assert set(pol.values()) == {(os.SCHED_FIFO, 20)}, pol
         assert {p for p, _ in thread_policies(plain.proc.pid).values()} == {os.SCHED_OTHER}
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
 
 
 @pytest.mark.skipif(shutil.which("setpriv") is None, reason="util-linux setpriv not installed")

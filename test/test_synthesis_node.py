@@ -1,7 +1,7 @@
 """synthesis_node over real DDS: applying a synthesis by joint name, all or nothing.
 
 controller_node, observer_node, monitor_node and synthesis_node run as separate processes
-(``reachset_ros.launch``), the synthesis runs on a real bag written with the package's bag
+(``reachset_ros.processes``), the synthesis runs on a real bag written with the package's bag
 writer from simulated closed-loop recordings (``sim.recordings.simulate_recordings``, as in
 test_synthesis.py; 1000 ticks and a small search, a few seconds per synthesis), and every
 parameter is read back through the nodes' ``get_parameters`` services.
@@ -17,7 +17,7 @@ import rclpy
 import yaml
 from reachset_msgs.srv import Synthesize
 
-from reachset_ros import launch
+from reachset_ros import processes
 from reachset_ros.conformance import model as mdl
 from reachset_ros.sim import recordings as sr
 from reachset_ros.nodes.common import get_remote_parameters, set_remote_parameters
@@ -58,18 +58,18 @@ def extra_args(tmp_path_factory):
 @pytest.fixture(scope="module")
 def nodes(ros, tmp_path_factory, extra_args):
     work = tmp_path_factory.mktemp("nodes")
-    procs = [launch.start("controller_node", {"joints": ALL_JOINTS, **INITIAL, "u_max": INITIAL_U_MAX,
+    procs = [processes.start("controller_node", {"joints": ALL_JOINTS, **INITIAL, "u_max": INITIAL_U_MAX,
                                               "allow_uncertified": True}, work),
-             launch.start("observer_node", {"joints": ALL_JOINTS, **INITIAL, "u_max": INITIAL_U_MAX,
+             processes.start("observer_node", {"joints": ALL_JOINTS, **INITIAL, "u_max": INITIAL_U_MAX,
                                             "allow_uncertified": True}, work),
-             launch.start("synthesis_node", {"workdir": str(work / "synthesis"), "extra_args": extra_args}, work)]
+             processes.start("synthesis_node", {"workdir": str(work / "synthesis"), "extra_args": extra_args}, work)]
     try:
         for p in procs:
             values, why = get_remote_parameters(ros, p.name, ["use_sim_time"], timeout=60.0)
             assert values is not None, f"{why}: {p.log.read_text()[-500:]}"
         yield procs
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
 
 
 @pytest.fixture
@@ -78,14 +78,14 @@ def monitor(ros, nodes, tmp_path):
     started = []
 
     def start(**params):
-        p = launch.start("monitor_node", {"window_dir": str(tmp_path / "windows"), **params}, tmp_path)
+        p = processes.start("monitor_node", {"window_dir": str(tmp_path / "windows"), **params}, tmp_path)
         started.append(p)
         values, why = get_remote_parameters(ros, "monitor_node", ["model_file"], timeout=60.0)
         assert values is not None, f"{why}: {p.log.read_text()[-500:]}"
         return p
 
     yield start
-    launch.stop(started)
+    processes.stop(started)
 
 
 @pytest.fixture

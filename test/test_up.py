@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from reachset_ros import launch, params_file
+from reachset_ros import processes, params_file
 from reachset_ros.domain import DOMAIN_RANGE, domain_of_port, domains_in_use, pick_domain_id
 from reachset_ros.errors import ReachsetError
 
@@ -182,9 +182,9 @@ def test_stop_kills_what_a_node_left_in_its_group():
     proc = subprocess.Popen(["sh", "-c", "sleep 300 & echo $!; exec sleep 300"], stdout=subprocess.PIPE,
                             text=True, start_new_session=True)
     left = int(proc.stdout.readline())
-    n = launch.NodeProcess("sh", proc, Path("/dev/null"))
+    n = processes.NodeProcess("sh", proc, Path("/dev/null"))
     assert n.alive() and running(left)
-    launch.stop([n], timeout=10)
+    processes.stop([n], timeout=10)
     assert proc.returncode is not None
     assert gone(left), "a process of the node's group outlived stop()"
 
@@ -199,15 +199,15 @@ def gone(pid, limit=30.0):
 
 def test_background_child_low_priority_own_group_and_ended_with_its_parent(tmp_path):
     # a parent that starts a background child and is then SIGKILLed: the child gets SIGTERM
-    code = ("import sys, time; from reachset_ros import launch; "
-            "p = launch.start_background(['sleep', '300']); print(p.pid, flush=True); time.sleep(300)")
+    code = ("import sys, time; from reachset_ros import processes; "
+            "p = processes.start_background(['sleep', '300']); print(p.pid, flush=True); time.sleep(300)")
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
                               env=dict(os.environ, PYTHONPATH=str(REPO)))
     try:
         child = int(parent.stdout.readline())
         assert os.getpgid(child) == child != os.getpgid(parent.pid)       # its own group
         nice = lambda pid: int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])  # noqa: E731
-        assert nice(child) == min(19, nice(parent.pid) + launch.BACKGROUND_NICE)
+        assert nice(child) == min(19, nice(parent.pid) + processes.BACKGROUND_NICE)
         parent.kill()
         parent.wait()
         assert gone(child), "the background child outlived its parent"
@@ -353,7 +353,7 @@ def test_demo_stopped_by_sigterm_during_synthesis_leaves_no_process(tmp_path):
         spid = synth[0][0]
         node = [p for p, c in suite_processes(str(work)) if "reachset_ros.nodes.synthesis_node" in c][0]
         nice = lambda pid: int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])  # noqa: E731
-        assert nice(spid) == min(19, nice(node) + launch.BACKGROUND_NICE)
+        assert nice(spid) == min(19, nice(node) + processes.BACKGROUND_NICE)
         assert os.getpgid(spid) == spid != os.getpgid(node)
         demo.send_signal(signal.SIGTERM)
         rc = demo.wait(timeout=120)

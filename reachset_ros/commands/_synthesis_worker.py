@@ -11,7 +11,7 @@ and writes the result, the command's ``--json`` object, to stdout as one pickle:
 reads the library's values, not printed text. Errors are reported as the command line
 reports them: one line on stderr (``reachset synthesize: error: ...``), exit status 2.
 
-The node starts it with :func:`reachset_ros.launch.start_background` (nice +10, a process
+The node starts it with :func:`reachset_ros.processes.start_background` (nice +10, a process
 group of its own, SIGTERM when the node dies). It is a program run by module name, so that
 the node, a layer below the workflows, imports none of them.
 """

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import launch
+from .. import processes
 from ..bags.messages import BRAKE_TOPIC, FAULT_ONSET_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC, STATUS_TOPIC
 from ..bags import read_messages
 from ..domain import pick_domain_id
@@ -84,13 +84,13 @@ def run(args):
     try:
         # SIGTERM as SIGINT: the story stops at its next step and every node it started is
         # stopped (the synthesis node stops its `reachset synthesize`), then exit 128 + signal
-        with launch.StopRequest() as stop:
+        with processes.StopRequest() as stop:
             res = run_demo(workdir=workdir, record=record, duration=args.duration, fault_at=fault_at, train=args.train,
                            seed=args.seed, log=log, fault=fault, inflation=args.inflation, stop=stop)
             stop.check()
     except RuntimeError as e:
         raise ReachsetError(f"demo: {e} (logs in {workdir})") from e
-    except launch.Interrupted as e:
+    except processes.Interrupted as e:
         print(f"reachset demo: stopped on {e}; every node it started is stopped; logs in {workdir}",
               file=sys.stderr, flush=True)
         raise

@@ -66,7 +66,7 @@ def check_inputs(args):
 
 
 def run(args):
-    from .. import launch
+    from .. import processes
     from ..nodes import bringup
     sections, model = check_inputs(args)
     if args.workdir:
@@ -98,7 +98,7 @@ def run(args):
             f"them; Ctrl-C or SIGTERM stops them")
 
     log(f"logs and parameter files in {workdir}")
-    with launch.StopRequest() as stop:
+    with processes.StopRequest() as stop:
         res = bringup.run(nodes, workdir, env, domain, stop, log=log, timeout=args.timeout, on_ready=ready)
     if res.status == 0:
         log("stopped" + (f" on {signal.Signals(res.signum).name}" if res.signum else "") + f"; logs in {workdir}")

@@ -1,11 +1,11 @@
 """Bring the node suite up in order, keep it running, stop it: the engine of ``reachset up``.
 
 :func:`plan` says which nodes run and with which parameters; :func:`run` starts them one
-after the other (:func:`reachset_ros.launch.start`, each in a session of its own, its
+after the other (:func:`reachset_ros.processes.start`, each in a session of its own, its
 output in ``WORKDIR/<node>.log``), each once the previous one is *up*: its node is in the
 ROS graph, as seen by a small node of this process in the suite's domain. Then it watches
-the processes until SIGINT or SIGTERM (:class:`reachset_ros.launch.StopRequest`) or until
-one of them ends, and stops them all (:func:`reachset_ros.launch.stop`: SIGINT, SIGTERM,
+the processes until SIGINT or SIGTERM (:class:`reachset_ros.processes.StopRequest`) or until
+one of them ends, and stops them all (:func:`reachset_ros.processes.stop`: SIGINT, SIGTERM,
 SIGKILL, and what is left of each process group).
 
 The order is the data flow's: the simulated arm and its reference generator (``--sim``),
@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import launch
+from .. import processes
 
 #: the suite, in start-up order; ``SIM_NODES`` only with ``--sim``
 SUITE = ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node", "synthesis_node")
@@ -94,7 +94,7 @@ class GraphWatch:
         from rclpy.signals import SignalHandlerOptions
         self.rclpy = rclpy
         self.context = rclpy.Context()
-        launch.use_dds_profiles()
+        processes.use_dds_profiles()
         rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("reachset_up", context=self.context, start_parameter_services=False,
                                       enable_rosout=False)
@@ -107,14 +107,14 @@ class GraphWatch:
         self.rclpy.try_shutdown(context=self.context)
 
 
-def _died(p: launch.NodeProcess) -> str:
+def _died(p: processes.NodeProcess) -> str:
     status = p.exit_status()
     how = f"was killed by signal {-status}" if status is not None and status < 0 else f"exited with status {status}"
     last = p.last_log_line()
     return f"{p.name} {how} (log {p.log}" + (f": {last}" if last else "") + ")"
 
 
-def run(nodes: dict, workdir: Path, env: dict, domain_id: int, stop: launch.StopRequest, log=print,
+def run(nodes: dict, workdir: Path, env: dict, domain_id: int, stop: processes.StopRequest, log=print,
         timeout: float = 60.0, on_ready=None) -> Outcome:
     """Start ``nodes`` in order, each once the previous is in the graph; run until a signal.
 
@@ -128,7 +128,7 @@ def run(nodes: dict, workdir: Path, env: dict, domain_id: int, stop: launch.Stop
         The nodes' environment (with ``ROS_DOMAIN_ID``).
     domain_id : int
         The suite's domain, for the graph watch.
-    stop : reachset_ros.launch.StopRequest
+    stop : reachset_ros.processes.StopRequest
         Installed by the caller; looked at between steps.
     log : callable
         Progress, one line per call.
@@ -150,7 +150,7 @@ def run(nodes: dict, workdir: Path, env: dict, domain_id: int, stop: launch.Stop
         for name, params in nodes.items():
             if stop:
                 break
-            p = launch.start(name, params, workdir, env=env, group=procs)
+            p = processes.start(name, params, workdir, env=env, group=procs)
             log(f"started {name} (pid {p.proc.pid}), log {p.log}")
             end = time.monotonic() + timeout
             while not stop:
@@ -185,4 +185,4 @@ def run(nodes: dict, workdir: Path, env: dict, domain_id: int, stop: launch.Stop
         running = [q for q in procs if q.alive()]
         if running:
             log(f"stopping {', '.join(q.name for q in reversed(running))}")
-        launch.stop(list(reversed(procs)))
+        processes.stop(list(reversed(procs)))

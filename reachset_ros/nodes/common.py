@@ -15,7 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from rclpy.signals import SignalHandlerOptions
 
 from ..errors import ReachsetError
-from ..launch import use_dds_profiles
+from ..processes import use_dds_profiles
 from . import scheduling
 
 try:

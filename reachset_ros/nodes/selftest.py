@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from reachset_msgs.msg import PlantInput
 
-from ..launch import use_dds_profiles
+from ..processes import use_dds_profiles
 
 
 def run_selftest(timeout: float = 30.0, value: float = 1.5) -> dict:

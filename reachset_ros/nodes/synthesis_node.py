@@ -42,7 +42,7 @@ from rclpy.parameter import Parameter
 from reachset_msgs.msg import JointSynthesis, SynthesisResult
 from reachset_msgs.srv import Synthesize
 
-from .. import defaults, launch
+from .. import defaults, processes
 from ..atomic import write_yaml
 from ..conformance import model as mdl
 from ..errors import ReachsetError
@@ -274,7 +274,7 @@ class SynthesisNode(Node):
 
     def run_child(self, cmd):
         """Run ``cmd`` (the synthesis worker) to its end: at low priority, in a process
-        group of its own (:func:`reachset_ros.launch.start_background`), stopped with its
+        group of its own (:func:`reachset_ros.processes.start_background`), stopped with its
         group when the node gets SIGINT/SIGTERM (:meth:`on_signal`) or is closed.
 
         Returns
@@ -284,11 +284,11 @@ class SynthesisNode(Node):
         """
         if self.stopping:               # the node is shutting down: start nothing
             return subprocess.CompletedProcess(cmd, -signal.SIGTERM, b"", "")
-        proc = launch.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        proc = processes.start_background(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.child = proc
         try:
             if self.stopping:           # a signal came while it was being started
-                launch.signal_group(proc, signal.SIGTERM)
+                processes.signal_group(proc, signal.SIGTERM)
             out, err = proc.communicate()
         finally:
             self.child = None
@@ -300,20 +300,20 @@ class SynthesisNode(Node):
         """SIGINT/SIGTERM (called from the signal handler of
         :func:`~reachset_ros.nodes.common.spin_until_signal`): stop a running synthesis, so
         the service callback returns and the node can shut down; SIGTERM to the child's
-        group, SIGKILL from the second signal on (``launch.stop`` escalates with SIGTERM)."""
+        group, SIGKILL from the second signal on (``processes.stop`` escalates with SIGTERM)."""
         again = self.stopping
         self.stopping = True
         if self.child is not None:
-            launch.signal_group(self.child, signal.SIGKILL if again else signal.SIGTERM)
+            processes.signal_group(self.child, signal.SIGKILL if again else signal.SIGTERM)
 
     @staticmethod
     def stop_child(proc, grace=3.0):
         """SIGTERM to ``proc``'s group, SIGKILL after ``grace`` s; reaps it."""
-        launch.signal_group(proc, signal.SIGTERM)
+        processes.signal_group(proc, signal.SIGTERM)
         try:
             proc.wait(timeout=grace)
         except subprocess.TimeoutExpired:
-            launch.signal_group(proc, signal.SIGKILL)
+            processes.signal_group(proc, signal.SIGKILL)
             proc.wait()
 
     def close(self):

@@ -2,7 +2,7 @@
 
 In the way navigation2's ``nav2_simple_commander.BasicNavigator`` drives Nav2, a
 :class:`SuiteCommander` (an rclpy node of its own) offers the verbs a workflow over the suite
-needs: start and stop the nodes' processes (:mod:`reachset_ros.launch`), record a bag, apply
+needs: start and stop the nodes' processes (:mod:`reachset_ros.processes`), record a bag, apply
 a model to the monitor, apply gains, reset the monitor, inject a fault (the simulator's, a
 link's through the relay, a killed or frozen process), wait for a stop, and spin for a time
 of the simulation's clock (``/clock`` from sim_node; the commander runs with
@@ -33,7 +33,7 @@ from reachset_msgs.srv import Synthesize
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from .. import launch
+from .. import processes
 from ..nodes.common import SAFE_STOP_QOS, set_remote_parameters
 from ..robot.dynamics import JOINT_NAMES
 
@@ -72,8 +72,8 @@ class SuiteCommander(Node):
     ----------
     workdir : str or Path
         Where the processes it starts write their parameter files and logs.
-    stop : reachset_ros.launch.StopRequest, optional
-        Looked at after every spin, where :class:`reachset_ros.launch.Interrupted` ends the
+    stop : reachset_ros.processes.StopRequest, optional
+        Looked at after every spin, where :class:`reachset_ros.processes.Interrupted` ends the
         workflow.
     node_name : str
     """
@@ -160,19 +160,19 @@ class SuiteCommander(Node):
 
     # ------------------------------------------------------------------ processes
     def start(self, node, params, *, node_name=None, remap=None):
-        """Start ``reachset_ros.nodes.<node>`` (:func:`reachset_ros.launch.start`); stopped by
+        """Start ``reachset_ros.nodes.<node>`` (:func:`reachset_ros.processes.start`); stopped by
         :meth:`close` if not before."""
-        proc = launch.start(node, params, self.workdir, node_name=node_name, group=self.group, remap=remap)
+        proc = processes.start(node, params, self.workdir, node_name=node_name, group=self.group, remap=remap)
         self.procs[node_name or node] = proc
         return proc
 
     def stop_processes(self, procs, *, timeout=10.0):
-        """Stop ``procs`` gracefully (:func:`reachset_ros.launch.stop`)."""
-        launch.stop(list(procs), timeout=timeout)
+        """Stop ``procs`` gracefully (:func:`reachset_ros.processes.stop`)."""
+        processes.stop(list(procs), timeout=timeout)
 
     def stop_all(self):
         """Stop every process the commander started."""
-        launch.stop(self.group)
+        processes.stop(self.group)
 
     def kill(self, name):
         """SIGKILL the process of node ``name`` (a crash)."""
@@ -288,11 +288,11 @@ def open_commander(*, workdir, stop=None, node_name=NODE_NAME):
     """A :class:`SuiteCommander`, closed on the way out (every process it started stopped).
 
     rclpy is initialised here when it is not yet (with the signals left to the caller, e.g.
-    a :class:`reachset_ros.launch.StopRequest`, not to rclpy, which would shut the context
+    a :class:`reachset_ros.processes.StopRequest`, not to rclpy, which would shut the context
     down) and then shut down here too. The nodes run in this process' ``ROS_DOMAIN_ID``."""
     own = not rclpy.ok()
     if own:
-        launch.use_dds_profiles()
+        processes.use_dds_profiles()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         commander = SuiteCommander(workdir=workdir, stop=stop, node_name=node_name)

@@ -60,8 +60,8 @@ def run_demo(*, workdir: Path, record: Path, duration: float, fault_at: float | 
     (the model's ``inflation``). None (default): calibrated by 2-fold cross-validation on the
     two training recordings (``reachset identify BAG1 BAG2 --calibrate 2 --initial-state-set``,
     :mod:`reachset_ros.conformance.calibration`), and the second synthesis is certified for
-    it. ``stop``: a :class:`reachset_ros.launch.StopRequest`; once it
-    has a signal, the next spin raises :class:`reachset_ros.launch.Interrupted` and every node
+    it. ``stop``: a :class:`reachset_ros.processes.StopRequest`; once it
+    has a signal, the next spin raises :class:`reachset_ros.processes.Interrupted` and every node
     started is stopped before it propagates. The nodes run in this process' ``ROS_DOMAIN_ID``
     (``reachset demo`` sets a fresh one)."""
     workdir.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,5 @@
-"""Start and stop nodes as separate processes (``launch`` is not on PyPI).
+"""The process supervisor: start and stop nodes as separate processes (ROS 2's ``launch`` is not
+on PyPI; ``launch/reachset.launch.py`` is the same suite for ``ros2 launch`` on a Jazzy install).
 
 Each node runs as ``python -m reachset_ros.nodes.<node>`` with a generated parameter file
 (``--ros-args --params-file``), its output in a log file, in a session (and so a process
