@@ -35,3 +35,23 @@ def ros():
     yield node
     node.destroy_node()
     rclpy.shutdown()
+
+
+@pytest.fixture(autouse=True)
+def _dds_only_where_marked(request, monkeypatch):
+    """A test that starts a DDS participant (``rclpy.init``) or a node process
+    (:func:`reachset_ros.processes.start`) must carry the ``dds`` marker, so that
+    ``make test-pure`` (``-m "not dds"``) runs none: an unmarked one fails, naming the rule."""
+    if request.node.get_closest_marker("dds") is not None:
+        yield
+        return
+    import rclpy
+
+    import reachset_ros.processes as processes
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("this test starts DDS or a node process: mark it @pytest.mark.dds "
+                           "(setup.cfg, markers)")
+    monkeypatch.setattr(rclpy, "init", refuse)
+    monkeypatch.setattr(processes, "start", refuse)
+    yield

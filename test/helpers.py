@@ -221,3 +221,17 @@ class Bus:
                 self.send_u(t, JOINTS[::-1], U[k][::-1])
             if pace:
                 time.sleep(pace)
+
+
+HISTORY = 3     # the fd estimator's history: ticks of a segment before its first test case
+#: the sample period of the node tests' streams, ns
+DT_NS = 4_000_000
+_next_stamp = [10**18]
+
+
+def stamps(n):
+    """Stamps for ``n`` ticks, later than any used before in this test session: a node hearing
+    an older test's late message must never see a stamp going backwards by accident."""
+    t0 = _next_stamp[0]
+    _next_stamp[0] += (n + 10_000) * DT_NS
+    return [t0 + k * DT_NS for k in range(n)]

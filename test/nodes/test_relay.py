@@ -5,10 +5,7 @@ topic, with the fault changed at run time through its parameters.
 """
 import time
 
-import numpy as np
 import pytest
-import rclpy
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from reachset_ros import processes
@@ -17,6 +14,9 @@ from reachset_ros.nodes.common import set_remote_parameters, stamp_ns, to_stamp
 from reachset_ros.sim.link import Link, LinkFault
 
 from helpers import PUB_QOS, Recorder, wait_until
+
+
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
 
 
 # ------------------------------------------------------------------ the pure link

@@ -23,7 +23,10 @@ from reachset_ros import processes, params_file
 from reachset_ros.domain import DOMAIN_RANGE, domain_of_port, domains_in_use, pick_domain_id
 from reachset_ros.errors import ReachsetError
 
-REPO = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 # ---------------------------------------------------------------- the domain rule

@@ -18,6 +18,9 @@ from reachset_ros import processes
 from reachset_ros.nodes.common import SAFE_STOP_QOS, to_stamp
 
 
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
+
 def call(node, srv_type, name, req, timeout=20.0):
     cli = node.create_client(srv_type, name)
     try:

@@ -20,6 +20,9 @@ import numpy as np
 
 from reachset_ros.bags import read_messages
 from reachset_ros.commands.demo import rate_hz
+import pytest
+
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
 
 
 def read_status_and_stops(record):

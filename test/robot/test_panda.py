@@ -70,6 +70,7 @@ def test_panda_identify_check_and_a_fault_through_the_effort_path(panda):
     assert first - onset < 2_000_000_000
 
 
+@pytest.mark.dds
 def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
     """monitor_node (input_source effort, the URDF by package path, the fingers locked) fed
     the faulted recording's /joint_states over DDS: its first violation is check's and it is

@@ -89,6 +89,7 @@ def test_synthesis_apply_path_certifies_the_model_it_applies(tmp_path):
                                                    str(tmp_path / "a.yaml"))
 
 
+@pytest.mark.dds
 @pytest.mark.parametrize("inflation, refused", [(0.0, False), (1.0, True)])
 def test_controller_gate_certifies_the_model_inflation(tmp_path, monkeypatch, inflation, refused):
     """The controller node (real rclpy) refuses to start with Table II gains under a model
@@ -147,6 +148,7 @@ def test_a_reference_class_recomputes_u_e_ff_for_new_gains():
         certify_pair({"arm_1_joint": other}, model, [26.0], 2.0, 0.004)
 
 
+@pytest.mark.dds
 def test_controller_gate_refuses_new_gains_the_model_cannot_certify(tmp_path, monkeypatch):
     """The controller node (real rclpy) under a synthesised model whose U_e,ff came from
     recorded references: a live omega change is refused naming U_e,ff; its own gains run."""
@@ -172,6 +174,7 @@ def test_controller_gate_refuses_new_gains_the_model_cannot_certify(tmp_path, mo
         rclpy.shutdown()
 
 
+@pytest.mark.dds
 def test_a_model_without_u_e_ff_is_not_certified_with_zero(tmp_path, monkeypatch):
     """A model from `reachset identify` records no U_e,ff. HEAD certified gains with U_e,ff = 0:
     omega 20 over these sets has R_u radius 23.66 < 26 and was accepted, although the loop's

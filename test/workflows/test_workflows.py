@@ -19,7 +19,7 @@ from reachset_ros.sim import recordings as sr
 from reachset_ros.workflows.identify import IdentifyOptions, identify
 from reachset_ros.workflows.synthesize import SynthesisOptions, synthesize
 
-PKG = Path(__file__).resolve().parents[1] / "reachset_ros"
+PKG = Path(__file__).resolve().parents[2] / "reachset_ros"
 JOINT = "arm_2_joint"
 SEARCH = {"sobol_log2": 3, "local_starts": 1, "local_maxfev": 20}
 

@@ -18,6 +18,7 @@ def test_reachset_help_runs():
     assert "usage: reachset" in out.stdout
 
 
+@pytest.mark.dds
 def test_plant_input_between_processes_and_parameter_set_across_them():
     from reachset_ros.nodes.selftest import run_selftest
     res = run_selftest(timeout=60.0, value=2.25)

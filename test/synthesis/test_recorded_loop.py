@@ -18,7 +18,7 @@ from reachset_ros.sim import recordings as sr
 from reachset_ros.synthesis import recorded_loop as rl
 from reachset_ros.synthesis.config import components_from_gains
 from reachset_ros.systems.plant import lwa4p_joint_plant
-from test_conformance import run_cli
+from cli_helpers import run_cli
 
 NAME = "arm_6_joint"
 

@@ -12,7 +12,10 @@ import rclpy
 from reachset_ros import processes
 from reachset_ros.nodes.common import set_remote_parameters
 
-REPO = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
+REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = dict(re.findall(r'"(\w+)": "(reachset_ros\.nodes\.\w+):main"', (REPO / "setup.py").read_text()))
 
 

@@ -23,7 +23,7 @@ from reachset_ros.robot import lwa4p
 from reachset_ros.robot.dynamics import DEFAULT_URDF, create_data, inverse_fl
 from reachset_ros.robot.effort import load_effort_input, plant_inputs
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 NOMINAL = REPO / "config" / "lwa4p_nominal.yaml"
 TS = bags.typestore()
 RUNS = [1, 2, 3, 5]            # training runs (none divisible by 4)
@@ -233,6 +233,7 @@ def test_inspect_suggests_the_effort_command_and_it_works(lwa_bags):
     assert len(out["joints"]) == 6 and out["data"]["input"]["source"] == "effort"
 
 
+@pytest.mark.dds
 def test_monitor_node_with_effort_input_stops_where_check_finds_the_first_violation(ros, lwa_bags, tmp_path):
     """Issue 15.3: ``monitor_node`` with ``input_source: effort`` monitors an arm from
     /joint_states alone (real rclpy, real DDS). A model identified with ``--input effort`` on

@@ -9,7 +9,7 @@ import yaml
 from reachset_ros.cli import main
 from reachset_ros.robot import lwa4p
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_generated_sections_of_the_interface_reference_match_the_code():

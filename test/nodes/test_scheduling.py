@@ -13,6 +13,9 @@ from reachset_ros.errors import ReachsetError
 from reachset_ros.nodes.scheduling import set_realtime, thread_policies
 
 
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
+
 def test_priority_zero_changes_nothing_and_out_of_range_is_refused():
     before = thread_policies()
     assert set_realtime(0) == 0

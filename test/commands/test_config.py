@@ -6,7 +6,7 @@ import pytest
 import rclpy
 import yaml
 
-CONFIG = Path(__file__).resolve().parents[1] / "config" / "lwa4p.yaml"
+CONFIG = Path(__file__).resolve().parents[2] / "config" / "lwa4p.yaml"
 CLASSES = {"sim_node": "SimNode", "reference_node": "ReferenceNode", "observer_node": "ObserverNode",
            "controller_node": "ControllerNode", "monitor_node": "MonitorNode", "synthesis_node": "SynthesisNode",
            "recorder_node": "RecorderNode"}
@@ -16,6 +16,7 @@ def test_every_node_has_a_section():
     assert set(yaml.safe_load(CONFIG.read_text())) == set(CLASSES)
 
 
+@pytest.mark.dds
 @pytest.mark.parametrize("name", sorted(CLASSES))
 def test_params_file_loads_into_the_node(name, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)                       # nodes may create their default directories

@@ -22,6 +22,9 @@ from reachset_ros.conformance import model as mdl
 from reachset_ros.sim import recordings as sr
 from reachset_ros.nodes.common import get_remote_parameters, set_remote_parameters
 
+
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
 ALL_JOINTS = [f"arm_{i}_joint" for i in range(1, 7)]
 J = "arm_2_joint"                       # the joint synthesised
 IDX = ALL_JOINTS.index(J)

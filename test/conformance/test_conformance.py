@@ -1,7 +1,5 @@
 """Conformance: bags -> test cases -> Theorem 1 identification, batch check, online monitor."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,6 +11,7 @@ from reachset_ros.errors import ReachsetError
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.conformance.monitor import JointMonitor, MonitorModel
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
+from cli_helpers import run_cli  # noqa: E402  (re-exported to the conformance tests)
 
 T0 = 1_700_000_000_000_000_000
 DT_NS = 4_000_000
@@ -220,12 +219,6 @@ def fault_check_equals_replay(tmp_path, y, u, names, model):
     assert not chk["conformant"] and chk["joints"][names[0]]["violations"] > 0
     for k in ("violations", "first_violation_ns", "test_cases", "checks"):
         assert chk["joints"][names[0]][k] == rep["joints"][names[0]][k], k
-
-
-def run_cli(*args):
-    out = subprocess.run([sys.executable, "-m", "reachset_ros.cli", *map(str, args)],
-                         capture_output=True, text=True, timeout=300)
-    return out
 
 
 def test_cli_identify_check_replay_and_messy_bags(tmp_path, lwa_data):

@@ -19,7 +19,7 @@ import pytest
 
 from reachset_ros.sim import campaign as cp
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_schedule_is_seeded_and_covers_every_kind():
@@ -107,6 +107,7 @@ def test_judge_rest_from_samples():
     assert not r["ok"] and r["judged"] == 2
 
 
+@pytest.mark.dds
 def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tmp_path):
     p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "fault_campaign.py"), "--short",
                         "--workdir", str(tmp_path)], capture_output=True, text=True, timeout=1200)

@@ -29,6 +29,9 @@ from reachset_ros.systems.late_reference import extrapolate
 from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
+pytestmark = pytest.mark.dds   # real DDS participants / node processes
+
+
 def spin_until(node, cond, timeout):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
