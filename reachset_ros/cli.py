@@ -10,7 +10,7 @@ import signal
 import sys
 
 from .commands import MODULES
-from .errors import ReachsetError
+from .errors import ReachsetError, first_line
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -50,7 +50,7 @@ def main(argv=None):
     except ReachsetError as e:
         if args.debug:
             raise
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        msg = first_line(e)
         print(f"reachset {args.command}: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:   # Ctrl-C, or processes.Interrupted (SIGINT/SIGTERM) after children stopped

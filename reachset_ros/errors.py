@@ -7,3 +7,10 @@ class ReachsetError(Exception):
 
 class InfeasibleError(ReachsetError):
     """An optimisation problem has no solution; the message names the binding constraint."""
+
+
+def first_line(error: BaseException) -> str:
+    """The first line of ``error``'s message, or its type's name when it has none: what the
+    command line prints after ``error:`` (one line, exit status 2)."""
+    text = str(error)
+    return text.splitlines()[0] if text else type(error).__name__

@@ -12,6 +12,7 @@ import struct
 
 import numpy as np
 
+from ..errors import first_line
 from .messages import JOINT_STATE_TYPE, PLANT_INPUT_TYPE, header_stamp_ns, typestore
 
 #: Message types decoded without rosbags: type -> (float64 sequences in order, by field name).
@@ -193,7 +194,7 @@ def decode_rows(buf, starts, lengths, msgtype, field, emit, deserialize=None):
                 try:
                     st, nm, vals = deserialize(row)
                 except Exception as e:  # noqa: BLE001 (rosbags' SerdeError and others)
-                    err = CdrError(str(e).splitlines()[0] if str(e) else type(e).__name__)
+                    err = CdrError(first_line(e))
                     err.row = int(rows[r])
                     raise err from None
                 vals = np.asarray(vals, dtype=np.float64)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from ..errors import ReachsetError
+from ..errors import ReachsetError, first_line
 from .messages import header_stamp_ns, typestore
 
 
@@ -83,7 +83,7 @@ def read_topic_rows(paths, topic, fields, joints=None):
         except ReachsetError:
             raise
         except Exception as e:  # rosbags raises many types for damaged files
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            first = first_line(e)
             raise ReachsetError(f"{path}: cannot read {topic} ({type(e).__name__}: {first})") from None
     if not found:
         return None

@@ -21,7 +21,7 @@ import pickle
 import signal
 import sys
 
-from ..errors import ReachsetError
+from ..errors import ReachsetError, first_line
 from . import synthesize
 
 PROG = "reachset synthesize"
@@ -60,7 +60,7 @@ def main(argv=None):
     except ReachsetError as e:
         if args.debug:
             raise
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        msg = first_line(e)
         print(f"{PROG}: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:

@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from ..atomic import write_yaml
-from ..errors import ReachsetError
+from ..errors import ReachsetError, first_line
 from .estimators import Estimator
 from ..systems.plant import LinearPlant, lwa4p_joint_plant
 
@@ -94,7 +94,7 @@ def plant_from_spec(spec):
     except KeyError as e:
         raise ReachsetError(f"model: bad plant: no {e.args[0]} given") from None
     except (ValueError, TypeError) as e:
-        raise ReachsetError(f"model: bad plant: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from e
+        raise ReachsetError(f"model: bad plant: {first_line(e)}") from e
     raise ReachsetError(f"model: unknown plant kind {kind!r} (lwa4p_joint or matrices)")
 
 

@@ -4,7 +4,8 @@ The stop path (simulator or drive -> observer -> controller -> monitor -> contro
 in four processes at 250 Hz. At the default (``SCHED_OTHER``) policy they share the CPU
 with every other process; on the 2-core machine with a busy process per core (the fault
 campaign's burners) a stop reached the controller up to 108 ms after its stamp, at priority
-50 at most 24 ms (docs/reliability.md, eighth long campaign; docs/campaign-history.md, seventh). A node started with ``realtime_priority`` > 0 puts every thread of
+50 at most 24 ms (docs/reliability.md, eighth long campaign; docs/campaign-history.md,
+seventh). A node started with ``realtime_priority`` > 0 puts every thread of
 its process, the DDS threads included, under ``SCHED_FIFO`` at that priority, as
 ros2_control does for its control loop: it then preempts every normal process.
 
