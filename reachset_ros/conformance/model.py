@@ -6,8 +6,8 @@ alpha_W) and V = (c_V, G'_V diag alpha_V), the horizon k*, the initial-state est
 an optional calibrated inflation, optional gains, provenance (input bags and their
 SHA-256), and the horizon rule's outcome (``minimum_horizon`` of the plant, and
 ``horizon_below_minimum: true`` when k* was accepted below it with ``--allow-weak-horizon``;
-see :func:`~reachset_ros.conformance.kernels.require_minimum_horizon`; both optional, so
-files written before them load unchanged). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
+see :func:`~reachset_ros.conformance.kernels.require_minimum_horizon`; a reader refuses a
+model below the minimum that does not record the flag, :func:`require_model_horizon`). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
 ``replay`` and the monitor node read it.
 """
 from __future__ import annotations
@@ -24,6 +24,7 @@ import yaml
 from ..atomic import write_yaml
 from ..errors import ReachsetError, first_line
 from .estimators import Estimator
+from .kernels import minimum_horizon
 from ..systems.plant import LinearPlant, lwa4p_joint_plant
 
 FORMAT = "reachset_ros/model/1"
@@ -200,11 +201,12 @@ def from_dict(d, source="model") -> ConformanceModel:
         joints[str(name)] = JointSets(aw, av, cw, cv, _int(j.get("test_cases", 0), f"joint {name} test_cases"),
                                       _int(j.get("horizon", horizon), f"joint {name} horizon"), gains,
                                       j.get("extra", {}) or {})
-    k_min = d.get("minimum_horizon")
-    k_min = None if k_min is None else _int(k_min, "minimum_horizon")
     below = d.get("horizon_below_minimum", False)
     if not isinstance(below, bool):
         raise ReachsetError(f"{source}: horizon_below_minimum must be true or false, got {below!r}")
+    require_model_horizon(plant, horizon, joints, recorded=d.get("minimum_horizon"), below=below, source=source)
+    k_min = d.get("minimum_horizon")
+    k_min = None if k_min is None else _int(k_min, "minimum_horizon")
     iss = d.get("initial_state_set", False)
     if not isinstance(iss, bool):
         raise ReachsetError(f"{source}: initial_state_set must be true or false, got {iss!r}")
@@ -217,6 +219,39 @@ def from_dict(d, source="model") -> ConformanceModel:
     return ConformanceModel(plant=plant, plant_spec=dict(d["plant"]), estimator=est, horizon=horizon, joints=joints,
                             inflation=inflation, provenance=d.get("provenance", {}) or {}, minimum_horizon=k_min,
                             horizon_below_minimum=below, initial_state_set=iss)
+
+
+def require_model_horizon(plant, horizon, joints, *, recorded, below, source):
+    """The horizon rule at every reader of a model (``check``, ``replay``, the monitor).
+
+    Theorem 1 (paper eq. 13) constrains every scaling factor alpha only from the plant's
+    minimum horizon on (:func:`~reachset_ros.conformance.kernels.minimum_horizon`): below it
+    alpha_W is unconstrained by the data and left at zero, so a check at that horizon calls
+    almost anything conformant. A model whose k* (or a joint's) is below the minimum is
+    refused unless it records ``horizon_below_minimum: true`` (identified with
+    ``--allow-weak-horizon``: a weaker guarantee accepted on purpose, which the reader then
+    honours); a recorded ``minimum_horizon`` that is not the plant's is refused too.
+
+    Returns
+    -------
+    int
+        The plant's minimum horizon.
+
+    Raises
+    ------
+    ReachsetError
+        Naming the horizon, the minimum and the way to accept a weaker guarantee.
+    """
+    k_min = minimum_horizon(plant)
+    if recorded is not None and _int(recorded, "minimum_horizon") != k_min:
+        raise ReachsetError(f"{source}: minimum_horizon {recorded} is not the plant's minimum horizon {k_min}")
+    shortest = min([horizon] + [j.horizon for j in joints.values()])
+    if shortest < k_min and not below:
+        raise ReachsetError(f"{source}: horizon {shortest} is below the plant's minimum horizon {k_min} (Theorem 1 "
+                            "then leaves alpha_W unconstrained); identify with --horizon "
+                            f"{k_min} or more (a model identified with --allow-weak-horizon records "
+                            "horizon_below_minimum: true)")
+    return k_min
 
 
 def load(path) -> ConformanceModel:

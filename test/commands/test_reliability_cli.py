@@ -719,3 +719,29 @@ def test_check_and_replay_agree_at_bag_boundaries(tmp_path, capsys):
             assert c["conformant"] is conformant
             for name, jc in c["joints"].items():
                 assert {k: r["joints"][name][k] for k in keys} == {k: jc[k] for k in keys}, (mf.name, name)
+
+
+@pytest.mark.parametrize("cmd", ["check", "replay"])
+def test_a_model_below_the_minimum_horizon_is_refused_unless_it_records_the_flag(cmd, tmp_path, clean_bag, capsys):
+    """Issue 34.7: a horizon-0 (or 1) model left alpha_W out of every Theorem-1 row, and ``check``,
+    ``replay`` and the monitor called faulty data conformant with it. Every reader refuses a
+    model below the plant's minimum horizon (2 for the LWA-4P joint plant) unless it records
+    ``horizon_below_minimum: true`` (identified with ``--allow-weak-horizon``), and a recorded
+    minimum that is not the plant's."""
+    weak = tmp_path / "weak.yaml"
+    run_json(["identify", clean_bag, "--horizon", 1, "--allow-weak-horizon", "--out", weak], capsys)
+    run_json([cmd, clean_bag, "--model", weak], capsys)          # the flag: a weaker guarantee, on purpose
+    doc = yaml.safe_load(weak.read_text())
+    for edit, words in (
+            (lambda d: d.pop("horizon_below_minimum"), ["horizon 1 is below the plant's minimum horizon 2",
+                                                         "--allow-weak-horizon"]),
+            (lambda d: (d.pop("horizon_below_minimum"), d.update(horizon=0),
+                        [j.update(horizon=0) for j in d["joints"].values()]),
+             ["horizon 0 is below the plant's minimum horizon 2"]),
+            (lambda d: d.update(minimum_horizon=0), ["minimum_horizon 0 is not the plant's minimum horizon 2"])):
+        d = yaml.safe_load(yaml.safe_dump(doc))
+        edit(d)
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(yaml.safe_dump(d))
+        code, so, se = run([cmd, clean_bag, "--model", bad, "--json"], capsys)
+        assert_one_line_error(code, so, se, cmd, [str(bad), *words])
