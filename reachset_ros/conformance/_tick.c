@@ -202,6 +202,9 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         int use_p = vp <= vm;
         int64_t col = use_p ? jp : jm;
         double margin = use_p ? vp : vm;
+        /* fail closed: a NaN among the margins (argmin returns the first) is no margin at all */
+        if (isnan(vp) || isnan(vm))
+            margin = NAN;
         int64_t c = j * S + col;
         int64_t k = s->ages[c] < S - 1 ? s->ages[c] : S - 1;
         s->checked[j] = cnt;
@@ -213,7 +216,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         s->bound[j] = cnt > 0 ? (use_p ? s->dp[j * S + k] : s->dm[j * S + k]) : 0.0;
         if (!valid[j])
             s->status[j] = 2;
-        else if (margin < 0)
+        else if (!(margin >= 0))
             s->status[j] = 1;
         else
             s->status[j] = gap ? 3 : 0;

@@ -160,7 +160,7 @@ class JointMonitor:
                 mp = self.mm.dp_vec[self.ages] - Ny
                 mm = self.mm.dm_vec[self.ages] + Ny
                 j, i = int(np.argmin(mp)), int(np.argmin(mm))
-                if mp[j] <= mm[i]:
+                if mp[j] <= mm[i] or math.isnan(mp[j]):
                     worst = (float(mp[j]), j, float(Ny[j]), float(self.mm.dp_vec[self.ages[j]]))
                 else:
                     worst = (float(mm[i]), i, float(-Ny[i]), float(self.mm.dm_vec[self.ages[i]]))
@@ -172,10 +172,12 @@ class JointMonitor:
                     mp = self.mm.dp[k] - Ny
                     mm = self.mm.dm[k] + Ny
                     j, i = int(np.argmin(mp)), int(np.argmin(mm))
-                    if mp[j] < worst[0]:
+                    if mp[j] < worst[0] or math.isnan(mp[j]):
                         worst = (float(mp[j]), col, float(Ny[j]), float(self.mm.dp[k][j]))
-                    if mm[i] < worst[0]:
+                    if mm[i] < worst[0] or math.isnan(mm[i]):
                         worst = (float(mm[i]), col, float(-Ny[i]), float(self.mm.dm[k][i]))
+                    if math.isnan(worst[0]):
+                        break                     # fail closed: a NaN margin is no margin
             margin, col, dev, bound = worst
             res = TickResult(margin >= 0, "ok" if margin >= 0 else "violation", self.X.shape[1], margin,
                              int(self.ages[col]), int(self.starts[col]), dev, bound)
@@ -422,7 +424,8 @@ class Monitor:
         vp, vm = mp[r, jp], mm[r, jm]
         use_p = vp <= vm
         col = np.where(use_p, jp, jm)
-        margin = np.where(use_p, vp, vm)
+        # fail closed: a NaN among the margins (argmin returns the first) is no margin at all
+        margin = np.where(np.isnan(vp) | np.isnan(vm), np.nan, np.where(use_p, vp, vm))
         checked = active.sum(axis=1)
         # advance all nominal states: X <- A X + B U (same arithmetic as conformance.advance)
         Xn = matvec_into(self._planA, X, self._Xbuf[1 - self._cur[0]])
@@ -431,7 +434,7 @@ class Monitor:
         if all_valid and not gap and margin.min() >= 0:
             status = ["ok"] * J
         else:
-            status = ["invalid" if not valid[j] else "violation" if margin[j] < 0 else
+            status = ["invalid" if not valid[j] else "violation" if not margin[j] >= 0 else
                       ("gap_reset" if gap else "ok") for j in range(J)]
         k = ages[r, col]
         has = checked > 0

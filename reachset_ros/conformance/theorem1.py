@@ -285,7 +285,8 @@ def check_extremes(thm, xi, devs):
     """
     worst = np.inf
     for (dp, dm), hp, hm in zip(thm.offsets(xi), devs.maxp, devs.maxm):
-        worst = min(worst, float((dp - hp).min()), float((dm - hm).min()))
+        # np.min propagates a NaN: a NaN margin is no margin (fail closed, never conformant)
+        worst = float(np.min([worst, (dp - hp).min(), (dm - hm).min()]))
     return bool(worst >= 0.0), worst
 
 
@@ -302,10 +303,10 @@ def check(plant, thm, estimator, xi, y, u, segments, horizon):
         dp, dm = offs[k]
         mp = dp[:, None] - Ny
         mm = dm[:, None] + Ny
-        viol = (mp < 0).any(axis=0) | (mm < 0).any(axis=0)
+        viol = ~(mp >= 0).all(axis=0) | ~(mm >= 0).all(axis=0)     # a NaN margin is a violation
         bad[t[viol]] = True
         stats["checks"] += ya.shape[1]
-        stats["margin"] = min(stats["margin"], float(mp.min()), float(mm.min()))
+        stats["margin"] = float(np.min([stats["margin"], mp.min(), mm.min()]))   # NaN propagates
 
     M = sweep(plant, estimator, y, u, segments, horizon, visit)
     idx = np.flatnonzero(bad)

@@ -347,7 +347,13 @@ def test_model_file_weak_horizon_fields_and_old_files(tmp_path):
     mdl.save(old, tmp_path / "old.yaml")                       # as written before the fields existed
     text = (tmp_path / "old.yaml").read_text()
     assert "minimum_horizon" not in text and "horizon_below_minimum" not in text
-    back = mdl.load(tmp_path / "old.yaml")
+    # an old file below the minimum horizon records no flag: refused (issue 34.7); at the minimum it loads
+    with pytest.raises(ReachsetError, match="horizon 1 is below the plant's minimum horizon 2"):
+        mdl.load(tmp_path / "old.yaml")
+    js2 = {"a": mdl.JointSets((1e-3, 1e-3), (1e-4,), (0,) * 5, (0.0,), 10, 2)}
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 2, js2),
+             tmp_path / "old2.yaml")
+    back = mdl.load(tmp_path / "old2.yaml")
     assert back.minimum_horizon is None and back.horizon_below_minimum is False
     weak = mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 1, js, 0.0, {}, 2, True)
     mdl.save(weak, tmp_path / "weak.yaml")
