@@ -82,10 +82,18 @@ class CoverageWatch:
       needs, and waiting for the horizon rule above takes H + k* + the missing-data limit
       (1.01 s in the fault campaign) where this rule takes the second loss (issue 17).
 
-    A stamp step longer than the missing-data limit starts afresh (silence is the
-    watchdog's business, on wall time), so a single gap never causes a coverage fault.
-    After a fault the watch starts afresh too. ``ticks`` and ``full_ticks`` count since
-    the last :meth:`reset`.
+    A stamp step longer than the missing-data limit starts the stamp-time rules afresh
+    (silence is the watchdog's business, on wall time), so a single gap never causes a
+    coverage fault. It does not restart the count of ticks received since a test case last
+    reached k*: a source clock that jumps forward again and again while samples keep coming
+    (the watchdog quiet) restarts every test case before k*, and
+
+    * more than ``history + k* + max_missing_ticks`` ticks received without a test case at
+      k*, across such jumps, is a ``coverage`` fault too (a stamp jump is lost coverage,
+      issue 34.8).
+
+    After a fault the watch starts afresh. ``ticks`` and ``full_ticks`` count since the last
+    :meth:`reset`.
     """
 
     PERIOD_TOLERANCE = 0.05
@@ -111,6 +119,8 @@ class CoverageWatch:
         self.longest_seen = -1      # largest step checked since the last check of step k*
         self.last_longest = -1
         self.last_gap = None        # (stamp of the tick after the previous gap, its step)
+        self.since_full = 0         # ticks received since a test case last reached k* (across jumps)
+        self.jumps = 0              # stamp steps longer than the limit among them
 
     def set_max_missing_ticks(self, n):
         self.max_missing_ticks = int(n)
@@ -130,6 +140,8 @@ class CoverageWatch:
         dt, mm = self.dt_ns, self.max_missing_ticks
         repeated = None
         if self.last is None or stamp - self.last > mm * dt:
+            if self.last is not None:
+                self.jumps += 1
             self.ref_check = self.ref_full = stamp
             self.run.clear()
             self.recent.clear()
@@ -154,8 +166,10 @@ class CoverageWatch:
             self.ref_full = stamp
             self.full_ticks += 1
             self.longest_seen = -1
+            self.since_full = self.jumps = 0
         else:
             self.longest_seen = max(self.longest_seen, longest)
+            self.since_full += 1
         H, K = self.history, self.horizon
         why = None
         if repeated is not None:
@@ -170,6 +184,11 @@ class CoverageWatch:
             why = (f"no test case reached the horizon k*={K} for {_ms(stamp - self.ref_full)} (allowed: "
                    f"{H + K}-tick warm-up + {_ms(mm * dt)} missing-data limit), longest step checked "
                    f"{self.longest_seen} of {K}: {self._stream()}")
+        elif self.since_full > H + K + mm:
+            why = (f"no test case reached the horizon k*={K} in the last {self.since_full} ticks received "
+                   f"(allowed: {H + K}-tick warm-up + {mm} ticks), {self.jumps} stamp steps longer than the "
+                   f"{_ms(mm * dt)} missing-data limit among them restarted every test case: "
+                   f"the stamps jump while samples keep coming; {self._stream()}")
         elif len(self.run) == self.run.maxlen:
             w = len(self.run) - 1
             mean = (self.run[-1] - self.run[0]) / w

@@ -392,3 +392,26 @@ def test_core_joint_list_must_be_in_the_model(model):
         MonitorCore(mdl.load(model), ["arm_1_joint", "arm_3_joint"])
     with pytest.raises(ReachsetError, match="twice"):
         MonitorCore(mdl.load(model), ["arm_1_joint", "arm_1_joint"])
+
+
+def test_core_stamps_that_jump_forward_again_and_again_are_a_coverage_fault(model):
+    """Issue 34.8: a source clock that jumps 0.504 s forward every 20 ticks while samples keep
+    coming (the wall-time watchdog quiet). Each jump is longer than the missing-data limit and
+    restarted the coverage watch, so no test case ever reached k* (25 here) and no stop came.
+    Now the ticks received without a test case at k* count across the jumps: a ``coverage``
+    fault within the warm-up plus the missing-data limit, in ticks; a single jump is not one."""
+    mm = 25
+    core = MonitorCore(mdl.load(model), gap_window=0)
+    n = 200
+    Y, U = stream(n, seed=4)
+    base = stamps(3 * n + 2000)[0]
+    ts = [base + k * DT_NS + (k // 20) * 126 * DT_NS for k in range(n)]       # +0.504 s every 20 ticks
+    f = faults_of(feed(core, ts, Y, U))
+    assert f and f[0].kind == "coverage", f
+    assert "stamp steps longer than" in f[0].reason and "missing-data limit" in f[0].reason, f[0].reason
+    assert ts.index(f[0].stamp) <= HISTORY + HORIZON + mm + 1
+    # one jump, then a steady stream: the test cases reach k* again, no fault
+    core = MonitorCore(mdl.load(model), gap_window=0)
+    base = stamps(3 * n + 2000)[0]
+    ts = [base + k * DT_NS + (126 * DT_NS if k >= 20 else 0) for k in range(n)]
+    assert not faults_of(feed(core, ts, Y, U))
