@@ -428,32 +428,40 @@ def u_e_ff_for_gains(gains, joint_sets, plant, u_ff=None):
     """``U_e,ff = (lo, hi)`` of ``gains`` for a model joint, or None (paper Appendix B).
 
     For the gate of the nodes (:func:`reachset_ros.systems.gains.certify_pair`): ``U_e,ff``
-    depends on the loop, and a synthesised model records it for its own gains only.
+    depends on the loop and on the references, and the controller accepts every reference
+    with ``|qdd_d| <= u_ff`` (its ``u_ff_bound``): the class ``A`` = ``qdd_max = u_ff``,
+    ``step_max = 2 u_ff`` (:class:`ReferenceClass`). A bound is sound for the running loop
+    only if it covers ``A`` (issue 34.4):
 
-    * The model's own gains, or a synthesis record without a reference class (it bounded
-      recorded references, which the model does not hold): None, i.e. the recorded value,
-      or a refusal (:func:`~reachset_ros.systems.gains.recorded_for_other_gains`).
-    * A recorded reference class: the class's sound bound (:func:`class_reference_error`)
-      for these gains.
-    * No record at all (a model from ``reachset identify``): the class of every reference
-      ``U_ff = [-u_ff, u_ff]`` admits, ``qdd_max = u_ff`` and ``step_max = 2 u_ff`` (which
-      the level bound already implies, :class:`ReferenceClass`), for these gains; None
-      without ``u_ff`` (then :func:`~reachset_ros.systems.gains.certify` refuses,
-      :data:`~reachset_ros.systems.gains.NO_U_E_FF`). Before, such a model certified its
-      gains with ``U_e,ff = 0``.
+    * A recorded reference class that covers ``A`` (``qdd_max >= u_ff``, ``step_max >=
+      2 u_ff``): for the model's own gains the recorded ``U_e,ff`` (None: the recorded value),
+      for other gains the class's sound bound (:func:`class_reference_error`).
+    * Otherwise (a record over recorded references, which the controller's class is not
+      inside; a recorded class narrower than ``A``; no record at all, a model from
+      ``reachset identify``): the sound bound over ``A`` itself, for these gains. Before, a
+      synthesis over recorded references certified its own gains with the recorded
+      references' ``U_e,ff`` (+-0.006) while the controller accepted +-2 rad/s^2 references
+      (class bound +-6.9).
+    * Without ``u_ff`` (``A`` unknown): the recorded value for the model's own gains, a
+      recorded class's bound for other gains, else None (:func:`~reachset_ros.systems.gains.certify`
+      then refuses, :data:`~reachset_ros.systems.gains.NO_U_E_FF`).
 
     None also when the bound does not converge (refused then, too).
     """
     rec = (getattr(joint_sets, "extra", None) or {}).get("reference_error") or {}
-    rc = rec.get("reference_class")
-    if rec.get("u_e_ff") is not None and (
-            not rc or not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets)):
-        return None
-    if rc:
-        cls = ReferenceClass.from_dict(rc)
-    elif u_ff is not None:
-        cls = ReferenceClass(qdd_max=abs(float(u_ff)))
+    rc = ReferenceClass.from_dict(rec["reference_class"]) if rec.get("reference_class") else None
+    own = not getattr(joint_sets, "gains", None) or is_model_gains(gains, joint_sets)
+    if u_ff is None:
+        if rec.get("u_e_ff") is not None and (rc is None or own):
+            return None
+        cls = rc
     else:
+        accepted = ReferenceClass(qdd_max=abs(float(u_ff)))
+        covers = rc is not None and rc.qdd_max >= accepted.qdd_max and rc.step_max >= accepted.step_max
+        if covers and own and rec.get("u_e_ff") is not None:
+            return None
+        cls = rc if covers else accepted
+    if cls is None:
         return None
     obs, ctrl = gains.build(plant.dt)
     try:

@@ -213,3 +213,34 @@ def test_a_model_without_u_e_ff_is_not_certified_with_zero(tmp_path, monkeypatch
             ControllerNode()
     finally:
         rclpy.shutdown()
+
+
+@pytest.mark.parametrize("record", ["recorded_references", "narrower_class"])
+def test_the_gate_bounds_u_e_ff_over_the_class_the_controller_accepts(record):
+    """Issue 34.4: the controller accepts every reference with |qdd_d| <= u_ff_bound. A model's
+    U_e,ff over its recorded references (+-0.006 here), or over a reference class narrower than
+    that, does not cover them: the gate bounds U_e,ff over the accepted class for the model's
+    own gains too (before: the recorded value, R*_u certified for references the controller
+    accepts but the record does not cover)."""
+    from reachset_ros.synthesis.reference_error import ReferenceClass, class_reference_error, u_e_ff_for_gains
+    from reachset_ros.systems.gains import certify_pair
+    if record == "recorded_references":
+        rec = {"reference_error": {"u_e_ff": [-0.0062, 0.0062]}}
+    else:
+        narrow = ReferenceClass.parse("qdd_max=1")
+        got = class_reference_error(PLANT, *TABLE_II.build(0.004), narrow)
+        rec = {"reference_error": {"u_e_ff": [got.u_lo, got.u_hi], "reference_class": narrow.as_dict()}}
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
+                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=rec)
+    model = mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
+                                 {"arm_1_joint": js}, 0.0)
+    want = class_reference_error(PLANT, *TABLE_II.build(0.004), ReferenceClass(qdd_max=2.0))
+    assert u_e_ff_for_gains(TABLE_II, js, PLANT, 2.0) == (want.u_lo, want.u_hi)
+    assert want.u_hi > 10 * 0.0062
+    expected = certify(TABLE_II, js, 0.0, 26.0, 2.0, u_e_ff=(want.u_lo, want.u_hi), plant=PLANT)
+    if expected.ok:
+        pc = certify_pair({"arm_1_joint": TABLE_II}, model, [26.0], 2.0, 0.004, u_e_ff_for=u_e_ff_for_gains)
+        assert pc.certified["arm_1_joint"].u_e_ff == (want.u_lo, want.u_hi)
+    else:                                       # R*_u over the accepted class leaves U_p: refused
+        with pytest.raises(ReachsetError, match="joint arm_1_joint"):
+            certify_pair({"arm_1_joint": TABLE_II}, model, [26.0], 2.0, 0.004, u_e_ff_for=u_e_ff_for_gains)
