@@ -5,7 +5,7 @@ Run: .venv/bin/python benchmarks/bench_demo.py [--runs 1 | --seeds 1 2 3 4 5] [-
 Runs ``reachset demo --headless --duration 25 --inject-fault-at 18 --record B --json``
 (the issue's command; 2.5-4 min each) and reads B back. The demo runs on the simulation's
 time (``/clock``; the bag's log time is that clock too), so its acceptance checks hold on a
-loaded machine and are a test (``test/test_demo.py``). This reports what depends on the
+loaded machine and are a test (``test/workflows/test_demo.py``). This reports what depends on the
 machine:
 
 * **real-time factor** of each phase (simulated / wall time, from the demo's JSON): 1.0

@@ -9,7 +9,7 @@ block of 8 events). Prints the table (docs/reliability.md, "Fault campaign") and
 
 Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 480 --seed 1 --quiet 4 8`` (about
 80 minutes of wall time; six training recordings of 40 s, the inflation one grid step above the
-cross-validated one); ``--short`` is the `make test` variant (test/test_fault_campaign.py): 10 events
+cross-validated one); ``--short`` is the `make test` variant (test/workflows/test_fault_campaign.py): 10 events
 after 1-2 s of fault-free running each, no burners, three training recordings of 20 s.
 ``--realtime-priority 50`` runs the loop's and the stop path's nodes under SCHED_FIFO
 (``realtime_priority``, docs/nodes.md; the burners and the recorder stay at the default policy).

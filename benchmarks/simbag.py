@@ -1,7 +1,7 @@
 """Simulated multi-joint recordings for the benchmarks, cached under benchmarks/.cache/.
 
 The per-joint plant of the paper's Appendix A (:func:`reachset_ros.systems.plant.lwa4p_joint_plant`)
-runs in closed loop (a PD law around a slow sine, as ``test/test_conformance.py``'s
+runs in closed loop (a PD law around a slow sine, as ``test/conformance/test_conformance.py``'s
 ``simulate``) with bounded random process disturbances and measurement noise, all joints
 at once (vectorised across joints). The bag holds ``/joint_states`` (position, velocity,
 effort of every joint) and ``/plant_input`` at 250 Hz, CDR-encoded here with ``struct``

@@ -1,4 +1,4 @@
-"""Helpers shared by the node tests (test_nodes.py, test_nodes_faults.py): models, data, DDS harness.
+"""Helpers shared by the node tests (test/nodes/, the monitor core tests): models, data, DDS harness.
 
 A plain module, imported by the tests that use it (``from helpers import Bus, write_model``),
 rather than conftest.py fixtures: what is shared here are a class and functions that take

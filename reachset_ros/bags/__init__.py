@@ -28,7 +28,7 @@ decoded
     Messages decoded one by one: :func:`read_messages` (small bags), :func:`read_topic_rows`.
 cdr
     Fast CDR decoding of ``JointState``/``PlantInput`` payloads with numpy (equal to
-    rosbags' ``deserialize_cdr`` message by message, ``test/test_bags.py``).
+    rosbags' ``deserialize_cdr`` message by message, ``test/bags/test_bags.py``).
 mcap
     MCAP storage files read chunk by chunk, and the checks of a bag's storage files.
 references

@@ -4,7 +4,7 @@ Payloads of one layout (header, ``string[] name``, float64 sequences) share one 
 (:func:`cdr_layout`, which accepts a payload iff rosbags' ``deserialize_cdr`` does); their
 stamps and values are then read for all of them at once (:func:`decode_rows`). Big-endian
 payloads go through rosbags. Results equal rosbags' ``deserialize_cdr`` message by message
-(``test/test_bags.py``).
+(``test/bags/test_bags.py``).
 """
 from __future__ import annotations
 

@@ -220,7 +220,7 @@ def observer_gains(plant, window, noise_ratio=1e-4, p0=1e4):
     Q = G'_W G'_W^T + 1e-12 I, R = noise_ratio^2 G'_V G'_V^T (the unscaled generators: the
     ratio says how much larger the process disturbances are than the measurement noise;
     1e-4 fits the LWA-4P, alpha_V about 1e-4 rad against alpha_W about 1). On noise-free
-    model data the error decays with the window (test/test_estimators.py).
+    model data the error decays with the window (test/conformance/test_estimators.py).
 
     The states of :func:`pinned_states` (the LWA-4P's disturbance state ``d``) have zero rows
     and columns in ``P_0`` and ``Q``, so their gain rows are exactly zero and the estimate

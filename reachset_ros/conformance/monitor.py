@@ -20,7 +20,7 @@ One tick, three implementations, all here but the C source:
   :meth:`Monitor._tick_numpy` for the per-joint LWA-4P plant with the ``fd`` estimator,
   the same floating-point operations in the same order; the ctypes mirror of its state is
   :class:`_TickState`. Pinned bit for bit, every output and the whole state, by
-  ``test/test_monitor_kernel.py::test_kernel_equals_numpy_bit_for_bit``.
+  ``test/conformance/test_monitor_kernel.py::test_kernel_equals_numpy_bit_for_bit``.
 * :meth:`JointMonitor.tick`: one joint whose output may have any dimension. With ny > 1 the
   normals N_k change with k and have a different number q_k of rows for each k, so the
   checks do not vectorise over the ring as :class:`Monitor`'s do; JointMonitor loops over
@@ -30,8 +30,8 @@ One tick, three implementations, all here but the C source:
   it orders its test cases newest first, where Monitor orders them by ring slot, so on an
   exact tie of two margins it may report another test case (``step``, ``start_tick``).
   Pinned equal to :class:`Monitor` for ny = 1 (status, margin and the reported check, bit
-  for bit) by ``test/test_monitor_kernel.py::test_joint_monitor_equals_numpy_tick``, and to
-  ``reachset check`` for ny = 1 and ny = 2 by ``test/test_conformance.py``
+  for bit) by ``test/conformance/test_monitor_kernel.py::test_joint_monitor_equals_numpy_tick``, and to
+  ``reachset check`` for ny = 1 and ny = 2 by ``test/conformance/test_conformance.py``
   (``test_replay_equals_check_exactly_with_violations_and_gaps``,
   ``test_multidimensional_output_plant``).
 
@@ -211,7 +211,7 @@ class Monitor:
     ``reachset_ros/conformance/_tick.c`` (per-joint LWA-4P plant with the ``fd`` estimator; built by
     ``pip install``/colcon with ``-ffp-contract=off``) and :meth:`_tick_numpy` (any
     plant and estimator). They perform the same floating-point operations in the same
-    order, so their results are bitwise equal (``test/test_monitor_kernel.py``).
+    order, so their results are bitwise equal (``test/conformance/test_monitor_kernel.py``).
 
     Syntax::
 

@@ -278,7 +278,7 @@ def judge_rest(event, names, stamps_ns, q, qd, stop_ns, until_ns):
     :data:`~reachset_ros.sim.safe_stop.TRAVEL_WITHIN_RAD` (the stated effect of a category-1
     stop, :func:`~reachset_ros.systems.stopping.rest_after_stop`). The joint of a frozen
     sensor cannot show rest and is not judged (the arm's true state is not recorded; the
-    stop law on the true state is checked by test/test_stopping.py). Returns a dict
+    stop law on the true state is checked by test/systems/test_stopping.py). Returns a dict
     (``ok``, ``rest_s``, ``travel_rad``, ``judged``, ``seconds``, ``why``); ``ok`` None when
     the reset came less than ``REST_WITHIN_S`` after the stop (nothing to judge). The 3 NaN
     samples of a ``nan`` fault are left out (they are the sensor fault, not the arm's motion)."""

@@ -32,7 +32,7 @@ __all__ = ["StopRun", "simulate_safe_stop", "REST_WITHIN_S", "TRAVEL_WITHIN_RAD"
 #: What a category-1 stop (default :class:`StopPolicy`) of the simulated LWA-4P is stated to
 #: achieve, from the stop's stamp: every joint at rest (|qd| < 0.01 rad/s from then on) within
 #: this time, having moved at most this far. Checked for every fault kind of the simulator by
-#: test/test_stopping.py and, from the recorded bag, by ``reachset demo``. The brake engages
+#: test/systems/test_stopping.py and, from the recorded bag, by ``reachset demo``. The brake engages
 #: at the latest ``max_time`` (0.3 s) or ``max_travel`` (0.2 rad) into the stop; the rest is
 #: the brake's deceleration (``brake_torque``: the URDF's effort limits) and the rest test.
 REST_WITHIN_S = 0.5

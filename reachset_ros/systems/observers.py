@@ -258,7 +258,7 @@ def extended_state_observer(l1, l2, l3, eps=0.01, dt=0.004, u_input="previous"):
       the plant at tick ``k`` (Appendix A: one sample of input delay). The observer keeps
       ``u_p[k-1]`` as an extra internal state, so it is still fed ``(y_p[k], u_p[k])``
       and has ``Do_u = 0`` (no algebraic loop). With ``eps = 0.01`` this reproduces the
-      ESO rows of the paper's Table III to within 0.1 % (test/test_closedloop.py).
+      ESO rows of the paper's Table III to within 0.1 % (test/systems/test_closedloop.py).
     * ``u_input="current"``: ``u = u_p[k]``. Then ``Do_u != 0`` and the compensated law
       ``u_p = ... - d_hat`` closes an algebraic loop, solved exactly by
       :func:`reachset_ros.systems.closedloop.close_loop` / :func:`~reachset_ros.systems.closedloop.closed_loop_tick`.

@@ -1,8 +1,10 @@
-"""Fixtures of the node tests: the test's side of DDS (:class:`helpers.Bus`), one per module."""
+"""Fixtures of the node tests: the test's side of DDS (:class:`helpers.Bus`), one per module, and a
+monitor_node process per test class."""
 import pytest
 import rclpy
 
-from helpers import Bus
+from helpers import Bus, write_model
+from reachset_ros import processes
 
 
 @pytest.fixture(scope="module")
@@ -13,3 +15,21 @@ def bus():
     yield b
     b.close()
     rclpy.shutdown()
+
+
+@pytest.fixture(scope="class")
+def monitor(bus, tmp_path_factory):
+    """A monitor_node process for one test class (the next class may start its own)."""
+    d = tmp_path_factory.mktemp("monitor")
+    path = write_model(d / "m.yaml")
+    # reset_clean_ticks 0: the tests reset the latched stop as a set-up step, with no data
+    # flowing; the rule that a reset waits until the stop's condition has cleared is tested
+    # by TestResetNeedsClearedCondition
+    proc = processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000, "reset_clean_ticks": 0,
+                                         "window_dir": str(d / "windows")}, d)
+    try:
+        assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
+                        and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+        yield proc, path, d
+    finally:
+        processes.stop([proc])

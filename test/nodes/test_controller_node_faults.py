@@ -636,7 +636,7 @@ class TestPrivilegedOperations:
         synthesis enclave the controller's and observer's set_parameters."""
         import xml.etree.ElementTree as ET
         from pathlib import Path
-        root = ET.parse(Path(__file__).resolve().parents[1] / "config" / "sros2" / "reachset_policy.xml").getroot()
+        root = ET.parse(Path(__file__).resolve().parents[2] / "config" / "sros2" / "reachset_policy.xml").getroot()
         requesters = {}
         for enclave in root.iter("enclave"):
             for services in enclave.iter("services"):

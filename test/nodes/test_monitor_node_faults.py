@@ -14,7 +14,6 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from reachset_msgs.msg import JointReference, SafeStop
 
 from helpers import DT_NS, HISTORY, JOINTS, stamps, stream, write_model
-from reachset_ros import processes
 from reachset_ros.conformance import model as mdl
 from reachset_ros.nodes.common import SAFE_STOP_QOS, stamp_ns, to_stamp
 from reachset_ros.conformance.monitor_core import MonitorCore
@@ -65,24 +64,6 @@ BAD_CASES = [
     ("duplicate_name", "name_mismatch", "arm_1_joint", "names joint arm_1_joint twice"),
     ("stamp_backwards", "stamp_backwards", "", "/joint_states stamp went backwards"),
 ]
-
-
-@pytest.fixture(scope="class")
-def monitor(bus, tmp_path_factory):
-    """A monitor_node process for one test class (the next class may start its own)."""
-    d = tmp_path_factory.mktemp("monitor")
-    path = write_model(d / "m.yaml")
-    # reset_clean_ticks 0: the tests reset the latched stop as a set-up step, with no data
-    # flowing; the rule that a reset waits until the stop's condition has cleared is tested
-    # by TestResetNeedsClearedCondition
-    proc = processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000, "reset_clean_ticks": 0,
-                                         "window_dir": str(d / "windows")}, d)
-    try:
-        assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                        and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
-        yield proc, path, d
-    finally:
-        processes.stop([proc])
 
 
 class TestMonitorNode:

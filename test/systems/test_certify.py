@@ -102,7 +102,8 @@ def test_controller_gate_certifies_the_model_inflation(tmp_path, monkeypatch, in
                      "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
     try:
         if refused:
-            with pytest.raises(ReachsetError, match=r"arm_1_joint: reachable input R\*_u .*radius 29.35.*U_p = \+-26"):
+            # U_e,ff bounded over the controller's class (issue 34.4), the sets inflated by 1 + 1
+            with pytest.raises(ReachsetError, match=r"arm_1_joint: reachable input R\*_u .* leaves U_p = \+-26 .*inflated by 1 \+ 1"):
                 ControllerNode()
         else:
             node = ControllerNode()
@@ -149,25 +150,40 @@ def test_a_reference_class_recomputes_u_e_ff_for_new_gains():
 
 
 @pytest.mark.dds
-def test_controller_gate_refuses_new_gains_the_model_cannot_certify(tmp_path, monkeypatch):
+def test_controller_gate_bounds_u_e_ff_over_its_class_for_a_model_from_recorded_references(tmp_path, monkeypatch):
     """The controller node (real rclpy) under a synthesised model whose U_e,ff came from
-    recorded references: a live omega change is refused naming U_e,ff; its own gains run."""
+    recorded references (+-0.5 here): that record does not cover the references the controller
+    accepts (|qdd_d| <= u_ff_bound 2), so the gate bounds U_e,ff over that class for its own
+    gains and for a live omega change alike (issue 34.4; before, its own gains ran on the record
+    and omega 22 was refused for want of a bound). The node's verdicts are the pure gate's."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 
     from reachset_ros.nodes.controller_node import ControllerNode
+    from reachset_ros.synthesis.reference_error import u_e_ff_for_gains
     monkeypatch.chdir(tmp_path)
     path = _model(tmp_path / "m.yaml", 0.0, extra={"reference_error": {"u_e_ff": [-0.5, 0.5]}})
+    js = mdl.load(path).joints["arm_1_joint"]
+    other = Gains(omega=22.0, zeta=0.96, h1=15.0, h2=30.0)
+    expect = {g.omega: certify(g, js, 0.0, 26.0, 2.0, u_e_ff=u_e_ff_for_gains(g, js, PLANT, 2.0), plant=PLANT)
+              for g in (TABLE_II, other)}
+    assert all(c.u_e_ff[1] > 5 for c in expect.values())          # the class bound, not the record's 0.5
     rclpy.init(args=["--ros-args", "-p", f"model_file:={path}", "-p", "joints:=[arm_1_joint]",
                      "-p", "u_max:=[26.0]", "-p", "omega:=[24.4]", "-p", "zeta:=[0.96]",
                      "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
     try:
+        if not expect[24.4].ok:
+            with pytest.raises(ReachsetError, match="U_e,ff"):
+                ControllerNode()
+            return
         node = ControllerNode()
         try:
             p = Parameter(name="omega", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
                                                              double_array_value=[22.0]))
             res = node.set_parameters([rclpy.parameter.Parameter.from_parameter_msg(p)])[0]
-            assert not res.successful and "U_e,ff" in res.reason and "omega=22" in res.reason, res.reason
-            assert list(node.get_parameter("omega").value) == [24.4]
+            assert res.successful == expect[22.0].ok, res.reason
+            assert list(node.get_parameter("omega").value) == ([22.0] if expect[22.0].ok else [24.4])
+            if not res.successful:
+                assert "U_e,ff" in res.reason, res.reason
         finally:
             node.destroy_node()
     finally:
