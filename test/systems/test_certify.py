@@ -127,6 +127,14 @@ def test_recorded_u_e_ff_holds_only_for_the_models_own_gains():
     assert certify(other, js, 0.0, 26.0, 2.0, u_e_ff=(-0.7, 0.7), plant=PLANT).ok
 
 
+def _table_ii_model(extra):
+    """A one-joint model (arm_1_joint) synthesised with Table II gains, with the record ``extra``."""
+    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
+                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=extra)
+    return js, mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
+                                    {"arm_1_joint": js}, 0.0)
+
+
 def test_a_reference_class_recomputes_u_e_ff_for_new_gains():
     """With the reference class in the model the gate computes the new loop's U_e,ff (the
     class's sound bound) and certifies with it; the model's own gains keep the recorded one."""
@@ -135,10 +143,7 @@ def test_a_reference_class_recomputes_u_e_ff_for_new_gains():
     rc = ReferenceClass.parse("qdd_max=2")
     own = class_reference_error(PLANT, *TABLE_II.build(0.004), rc)
     rec = {"reference_error": {"u_e_ff": [own.u_lo, own.u_hi], "reference_class": rc.as_dict()}}
-    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
-                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=rec)
-    model = mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
-                                 {"arm_1_joint": js}, 0.0)
+    js, model = _table_ii_model(rec)
     other = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0)
     assert u_e_ff_for_gains(TABLE_II, js, PLANT) is None
     want = class_reference_error(PLANT, *other.build(0.004), rc)
@@ -246,10 +251,7 @@ def test_the_gate_bounds_u_e_ff_over_the_class_the_controller_accepts(record):
         narrow = ReferenceClass.parse("qdd_max=1")
         got = class_reference_error(PLANT, *TABLE_II.build(0.004), narrow)
         rec = {"reference_error": {"u_e_ff": [got.u_lo, got.u_hi], "reference_class": narrow.as_dict()}}
-    js = mdl.JointSets(SETS.alpha_w, SETS.alpha_v, SETS.c_w, SETS.c_v, 0, 125,
-                       gains={**TABLE_II.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra=rec)
-    model = mdl.ConformanceModel(PLANT, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
-                                 {"arm_1_joint": js}, 0.0)
+    js, model = _table_ii_model(rec)
     want = class_reference_error(PLANT, *TABLE_II.build(0.004), ReferenceClass(qdd_max=2.0))
     assert u_e_ff_for_gains(TABLE_II, js, PLANT, 2.0) == (want.u_lo, want.u_hi)
     assert want.u_hi > 10 * 0.0062
