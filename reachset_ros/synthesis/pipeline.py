@@ -333,19 +333,36 @@ def plan(bags, options: SynthesisOptions):
 def read_bags(pl: SynthesisPlan):
     """The bags' series, references and (reidentify) recorded loops, read in this process."""
     o, plant = pl.options, pl.plant
-    series, report = read_joint_series(list(pl.bags), pl.names, plant.dt,
-                                       tuple(o.topics) if o.topics else (JOINT_STATES, PLANT_INPUT),
-                                       **(o.reader or {}))
+    series, report = read_joint_series(list(pl.bags), pl.names, plant.dt, _topics(o), **(o.reader or {}))
     names = list(series)
     cf.require_horizon(series, pl.estimator.history, pl.horizon, pl.bags)
     _require_gains(pl, names)
     refs = read_references(list(pl.bags), names, plant.dt)
-    loop_ext = None
-    if pl.loops:
-        est_rows = read_estimates(list(pl.bags), names) or {}
-        loop_ext = {n: rl.series_loop_extremes(plant, *pl.loops[n], series[n], est_rows.get(n), refs.get(n, ()))
-                    for n in names if n in pl.loops}
+    loop_ext = _recorded_loops(pl, names) if pl.loops else None
     return BagData(names=names, series=series, devs=None, report=report, references=refs, loops=loop_ext)
+
+
+def _topics(o):
+    return tuple(o.topics) if o.topics else (JOINT_STATES, PLANT_INPUT)
+
+
+def _recorded_loops(pl: SynthesisPlan, names):
+    """The recorded loops of the re-identified joints, bag by bag, merged exactly
+    (:func:`reachset_ros.synthesis.recorded_loop.merge`): estimates and references are paired
+    with the measurements of their own bag, as the fleet's per-bag tasks do
+    (:func:`reachset_ros.fleet.tasks.bag_extremes`), so that bags whose stamps overlap give the
+    same rows in one process as on a fleet (issue 34.12; before, one process paired each
+    measurement with whichever bag's estimate had its stamp)."""
+    o, plant = pl.options, pl.plant
+    parts = {n: [] for n in names if n in pl.loops}
+    for bag in pl.bags:
+        series, _ = read_joint_series([bag], pl.names, plant.dt, _topics(o), **(o.reader or {}))
+        refs = read_references([bag], list(series), plant.dt)
+        est = read_estimates([bag], list(series)) or {}
+        for n in parts:
+            if n in series:
+                parts[n].append(rl.series_loop_extremes(plant, *pl.loops[n], series[n], est.get(n), refs.get(n, ())))
+    return {n: rl.merge(v) for n, v in parts.items()}
 
 
 def _require_gains(pl: SynthesisPlan, names):
