@@ -1,16 +1,18 @@
 """Shared test set-up: DDS isolated per test session, the real recordings shipped in the package."""
 import os
-import random
 from pathlib import Path
 
 import pytest
 
+from reachset_ros.domain import pick_domain_id
 from reachset_ros.processes import use_dds_profiles
 
 # Real DDS, but only on this host and in a domain of our own, so that parallel test runs
 # (and other ROS 2 programs on the machine) do not see each other.
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
+# A domain nothing else on the machine uses (reachset_ros.domain, as `reachset up` and the demo
+# pick theirs): a random one once met a leftover node of an earlier run publishing /plant_input
+os.environ.setdefault("ROS_DOMAIN_ID", str(pick_domain_id()))
 # and the suite's Fast DDS discovery profile, as every node and driver uses it, for the
 # tests' own participants and every process they start (docs/reliability.md, start-up discovery)
 use_dds_profiles()
