@@ -6,11 +6,10 @@ and exits with status 2 (a traceback only with ``--debug``).
 """
 import argparse
 import importlib
-import signal
 import sys
 
 from .commands import MODULES
-from .errors import ReachsetError, first_line
+from .errors import exit_status
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -45,17 +44,7 @@ def main(argv=None):
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
-    try:
-        rc = args._run(args)
-    except ReachsetError as e:
-        if args.debug:
-            raise
-        msg = first_line(e)
-        print(f"reachset {args.command}: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as e:   # Ctrl-C, or processes.Interrupted (SIGINT/SIGTERM) after children stopped
-        return 128 + getattr(e, "signum", signal.SIGINT)
-    return int(rc or 0)
+    return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
 
 
 if __name__ == "__main__":

@@ -18,10 +18,9 @@ the node, a layer below the workflows, imports none of them.
 import argparse
 import contextlib
 import pickle
-import signal
 import sys
 
-from ..errors import ReachsetError, first_line
+from ..errors import exit_status
 from . import synthesize
 
 PROG = "reachset synthesize"
@@ -54,21 +53,14 @@ def main(argv=None):
     argv = argv[1:]
     args = parser().parse_args(argv)
     out = sys.stdout.buffer
-    try:
+
+    def run():
         with contextlib.redirect_stdout(sys.stderr):    # stdout carries the pickle only
             _, result = synthesize.compute(args, command=" ".join([PROG, *argv]))
-    except ReachsetError as e:
-        if args.debug:
-            raise
-        msg = first_line(e)
-        print(f"{PROG}: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as e:
-        return 128 + getattr(e, "signum", signal.SIGINT)
-    pickle.dump(result, out, protocol=pickle.HIGHEST_PROTOCOL)
-    out.flush()
-    return 0
+        pickle.dump(result, out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
 
+    return exit_status(PROG, run, debug=args.debug)
 
 if __name__ == "__main__":
     sys.exit(main())
