@@ -41,12 +41,18 @@ $(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/conformance/_tick.c
 
 venv: $(VENV)/.pkg
 
+# the pure tests on PURE_JOBS processes (pytest-xdist; they share nothing but the CPU), then the
+# DDS tests one at a time (each module's nodes in the session's own domain); both always run
+PURE_JOBS ?= 2
 test: venv
-	$(PY) -m pytest $(PYTEST_ARGS)
+	@rc=0; \
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(PURE_JOBS) || rc=$$?; \
+	$(PY) -m pytest $(PYTEST_ARGS) -m dds || rc=$$?; \
+	exit $$rc
 
 # the pure tests only (no DDS participant, no node process): the core, the command line, bags
 test-pure: venv
-	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds"
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(PURE_JOBS)
 
 # the demo picks a fresh ROS_DOMAIN_ID (reachset_ros/domain.py) and prints it first: a second
 # `make demo` on the machine runs beside it undisturbed
