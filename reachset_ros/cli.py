@@ -2,10 +2,13 @@
 
 Subcommands live in :mod:`reachset_ros.commands`, one module each. Errors in the user's
 input raise :class:`reachset_ros.errors.ReachsetError`; ``main`` prints them as one line
-and exits with status 2 (a traceback only with ``--debug``).
+and exits with status 2 (a traceback only with ``--debug``). A reader that closes the pipe
+early (``reachset check ... | head -1``) does not change the exit status: output written after
+that is dropped (:class:`_ClosedPipeSafe`) and the command's own status is returned.
 """
 import argparse
 import importlib
+import os
 import sys
 
 from .commands import MODULES
@@ -17,6 +20,42 @@ class _OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+class _ClosedPipeSafe:
+    """A text stream that drops what is written once its reader has closed the pipe.
+
+    Python ignores SIGPIPE, so a write to a closed pipe raises BrokenPipeError; uncaught, a
+    conformant ``reachset check BAG --model M | true`` ended with a traceback and exit status 1.
+    On the first such error the stream's descriptor is pointed at /dev/null (so the final flush
+    at exit cannot fail either) and the rest of the output is discarded.
+    """
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _closed(self):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, self._stream.fileno())
+        finally:
+            os.close(devnull)
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._closed()
+            return len(text)
+
+    def flush(self):
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def build_parser():
@@ -39,13 +78,18 @@ def build_parser():
 
 
 def main(argv=None):
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "command", None):
-        parser.print_help()
-        return 2
-    return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
-
+    stdout = sys.stdout
+    if not isinstance(stdout, _ClosedPipeSafe) and hasattr(stdout, "fileno"):
+        sys.stdout = _ClosedPipeSafe(stdout)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 2
+        return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
+    finally:
+        sys.stdout = stdout
 
 if __name__ == "__main__":
     sys.exit(main())
