@@ -10,13 +10,15 @@ went meanwhile: across a phase switch of a trapezoid, ``h`` s late is a jump of 
 ``u_ff h^2`` in ``q_d`` and ``2 u_ff h`` in ``qd_d``. In the noise-free nominal loop (HG
 observer h1 15, h2 30, omega 20, zeta 1; U_p 26, ``Y_e,ref`` 0.009 rad over the class) 0.2 s
 late from 80 ms before a switch gave ``max |u_p| = 35.7`` rad/s^2 and a tracking error of
-0.038 rad, reported as "tracking" (issue 34.3; ``test/systems/test_reentry.py``).
+0.038 rad, reported as "tracking" (issue 34.3; ``test/systems/test_reentry.py``,
+``python benchmarks/late_reference.py --reentry``).
 
 Keeping the tracked reference in the class instead (a bounded-acceleration blend from the
 carried reference onto the returned one) was measured and rejected: with ``u_ff`` equal to
 the references' own ``qdd_max`` (2 rad/s^2, the demo's and the campaigns') the blend cannot
-catch a reference that decelerates at the limit; 2 ticks late across a switch left the
-tracked reference 0.032 rad off the published one for 2 s, 0.2 s late 0.88 rad.
+catch a reference that decelerates at the limit: 2 ticks late across a switch left the
+tracked reference up to 0.016 rad off the published one for 485 ticks (1.9 s), the issue's
+0.2 s 0.51 rad, not back on it within 3 s (``benchmarks/late_reference.py --reentry``).
 
 So a re-entry is out of class, and the controller says so (:class:`ReentryWatch`): each tick,
 per joint, the step from the previous tracked sample to this one is tested with
