@@ -59,7 +59,7 @@ def beyond_u_p(node, stamp, u):
     over = np.abs(u) > node.u_max
     if not np.any(over):
         return False
-    tr = node.transient
+    tr = getattr(node, "transient", None)
     in_reentry = tr is not None and tr["active"] and tr["cause"] == REENTRY
     if not (node.holding or in_reentry):
         return False
@@ -76,7 +76,7 @@ def beyond_u_p(node, stamp, u):
 def status(node, late_new):
     """The WARN message of /diagnostics for these events, or None (``late_new``: late ticks
     since the last report)."""
-    tr = node.transient
+    tr = getattr(node, "transient", None)
     if node.reentry_last is not None and (not node.reentry_reported or tr is not None and tr["active"]
                                           and tr["cause"] == REENTRY):
         node.reentry_reported = True
