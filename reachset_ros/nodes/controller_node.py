@@ -41,10 +41,9 @@ counted ``late_reference`` with the largest age used (``reference_age_max_ns``).
 reference older than ``reference_max_age`` (0.2 s of stamp time) is a stop of the
 controller's own ("reference lost": brakes, latched until the monitor's reset), since
 neither holding an old reference nor carrying it further keeps the input in ``U_p``.
-Late ticks, the jump back when references return (a re-entry out of the certified class)
-and the hold without any reference are reported, never as tracking; a tick of the hold or
-of a re-entry's transient whose u_p would leave ``U_p`` is a stop of the controller's own
-(:mod:`~reachset_ros.nodes.reference_events`, issue 34.3).
+Late ticks, a re-entry out of the certified class when references return, and the hold
+without any reference are reported, never as tracking; beyond ``U_p`` they are a stop of
+the controller's own (:mod:`~reachset_ros.nodes.reference_events`, issue 34.3).
 """
 import time
 
@@ -61,7 +60,6 @@ from ..conformance import model as mdl
 from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems import late_reference
-from ..systems.reentry import ReentryWatch
 from ..systems.stopping import StopPolicy, StopState, stop_tick
 from . import reference_events
 from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
@@ -142,9 +140,7 @@ class ControllerNode(Node):
                          "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
                          "torque_beyond_limits": 0, "stale_estimate": 0, "reference_age_max_ns": 0,
                          **reference_events.COUNTERS}
-        # re-entries after late references, the hold (issue 34.3: reference_events)
-        self.reentry, self.reentry_last, self.reentry_reported, self.holding = ReentryWatch(), None, True, False
-        self.late_reported = 0           # late_reference at the last /diagnostics
+        reference_events.init(self)      # re-entries after late references, the hold (issue 34.3)
         self.last_command_stamp = None   # stamp of the last command sent (commands never go back in stamp)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
@@ -474,17 +470,16 @@ class ControllerNode(Node):
         return older
 
     def reference_at(self, stamp, late=False):
-        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when it lacks a joint,
-        has short arrays or non-finite values (``bad_reference``) or none was ever received
-        (``no_reference``).
+        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when there is no usable
+        one to carry forward (``no_reference``: none received since the start or the last stop).
 
-        When it has not arrived and ``late``: the newest usable reference received with an
-        earlier stamp (arrived on time or not), carried forward to ``stamp`` at constant
-        acceleration (:func:`~reachset_ros.systems.late_reference.extrapolate`; counted
-        ``late_reference``, its age in ``reference_age_max_ns``; ``ref_late`` set); :data:`LOST`
-        when that reference is older than ``reference_max_age`` (the caller stops). An unusable
-        reference of the tick's own stamp is treated as late (issue 34.3: holding ``qd_d = 0``
-        at speed left ``U_p``). References older
+        When it has not arrived and ``late``, or it is unusable (lacks a joint, short arrays,
+        non-finite values: ``bad_reference``; issue 34.3, holding ``qd_d = 0`` at speed left
+        ``U_p``): the newest usable reference received with an earlier stamp (arrived on time
+        or not), carried forward to ``stamp`` at constant acceleration
+        (:func:`~reachset_ros.systems.late_reference.extrapolate`; counted ``late_reference``,
+        its age in ``reference_age_max_ns``; ``ref_late`` set); :data:`LOST` when that
+        reference is older than ``reference_max_age`` (the caller stops). References older
         than the one used are dropped (commands never go back in stamp)."""
         ref = self.refs.pop(stamp, None)
         self.ref_late = False

@@ -22,11 +22,19 @@ Functions on the :class:`~reachset_ros.nodes.controller_node.ControllerNode`; no
 """
 import numpy as np
 
+from ..systems.reentry import ReentryWatch
+
 #: the cause of the transient after a re-entry (``transient_cause`` on /diagnostics)
 REENTRY = "reference re-entry"
 #: the counters these events add to the controller's
 COUNTERS = {"reference_reentry": 0, "reference_reentry_last_ns": 0, "reference_reentry_dq_max": 0.0,
             "reference_reentry_dqd_max": 0.0, "reference_hold_ticks": 0}
+
+
+def init(node):
+    """The node's state for these events."""
+    node.reentry, node.reentry_last, node.reentry_reported, node.holding = ReentryWatch(), None, True, False
+    node.late_reported = 0           # late_reference at the last /diagnostics
 
 
 def on_reference_tick(node, stamp, ref, late):
