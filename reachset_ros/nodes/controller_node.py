@@ -31,7 +31,7 @@ position (u_p = 0), so the drives always get a command. With ``wait_for_monitor`
 holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
 the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
-treated as none (hold the measured position); both are counted on ``/diagnostics``.
+treated as a late one (below); both are counted on ``/diagnostics``.
 
 A reference that has not come within ``reference_timeout`` (wall) of its estimate is late:
 the tick is controlled with the newest earlier reference received, carried forward to the
@@ -41,6 +41,9 @@ counted ``late_reference`` with the largest age used (``reference_age_max_ns``).
 reference older than ``reference_max_age`` (0.2 s of stamp time) is a stop of the
 controller's own ("reference lost": brakes, latched until the monitor's reset), since
 neither holding an old reference nor carrying it further keeps the input in ``U_p``.
+Late ticks, a re-entry out of the certified class when references return, and the hold
+without any reference are reported, never as tracking; beyond ``U_p`` they are a stop of
+the controller's own (:mod:`~reachset_ros.nodes.reference_events`, issue 34.3).
 """
 import time
 
@@ -58,6 +61,7 @@ from ..robot import dynamics as robot
 from ..errors import ReachsetError
 from ..systems import late_reference
 from ..systems.stopping import StopPolicy, StopState, stop_tick
+from . import reference_events
 from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
@@ -134,7 +138,9 @@ class ControllerNode(Node):
         self.last_q = None           # the last usable estimated position
         self.counters = {"no_reference": 0, "late_reference": 0, "bad_reference": 0, "bad_estimate": 0,
                          "braking_ticks": 0, "reference_out_of_class": 0, "brakes_engaged": 0, "bad_command": 0,
-                         "torque_beyond_limits": 0, "stale_estimate": 0, "reference_age_max_ns": 0}
+                         "torque_beyond_limits": 0, "stale_estimate": 0, "reference_age_max_ns": 0,
+                         **reference_events.COUNTERS}
+        reference_events.init(self)      # re-entries after late references, the hold (issue 34.3)
         self.last_command_stamp = None   # stamp of the last command sent (commands never go back in stamp)
         self.out_of_class_last = None    # (stamp, joint, qdd_d) of the last flagged reference
         self.out_of_class_reported = 0   # the count at the last /diagnostics
@@ -196,6 +202,7 @@ class ControllerNode(Node):
         new_flags = n_flagged - self.out_of_class_reported
         self.out_of_class_reported = n_flagged
         tr = self.transient
+        late_seen, self.late_reported = self.late_reported, self.counters["late_reference"]
         if self.own_stop is not None:
             st.level, st.message = DiagnosticStatus.ERROR, f"stopped by the controller: {self.own_stop}; brakes engaged"
         elif self.stop_active:
@@ -210,6 +217,8 @@ class ControllerNode(Node):
             st.level = DiagnosticStatus.WARN
             st.message = (f"reference out of class at {new_flags} tick(s) (last: stamp {stamp}, {joint} |qdd_d| = "
                           f"{abs(acc):.4g} > u_ff_bound {self.u_ff:g} rad/s^2): R_u is not certified there")
+        elif (ref_msg := reference_events.status(self, self.counters["late_reference"] - late_seen)) is not None:
+            st.level, st.message = DiagnosticStatus.WARN, ref_msg
         elif tr is not None and tr["active"]:
             st.level = DiagnosticStatus.OK
             st.message = (f"tracking; transient after the {tr['cause']} until stamp {tr['end_ns']}: the tracking "
@@ -461,23 +470,26 @@ class ControllerNode(Node):
         return older
 
     def reference_at(self, stamp, late=False):
-        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when it lacks a joint,
-        has short arrays or non-finite values (``bad_reference``) or none was ever received
-        (``no_reference``).
+        """(q_d, qd_d, qdd_d) of the reference stamped ``stamp``; None when there is no usable
+        one to carry forward (``no_reference``: none received since the start or the last stop).
 
-        When it has not arrived and ``late``: the newest usable reference received with an
-        earlier stamp (arrived on time or not), carried forward to ``stamp`` at constant
-        acceleration (:func:`~reachset_ros.systems.late_reference.extrapolate`; counted
-        ``late_reference``, its age in ``reference_age_max_ns``); :data:`LOST` when that
+        When it has not arrived and ``late``, or it is unusable (lacks a joint, short arrays,
+        non-finite values: ``bad_reference``; issue 34.3, holding ``qd_d = 0`` at speed left
+        ``U_p``): the newest usable reference received with an earlier stamp (arrived on time
+        or not), carried forward to ``stamp`` at constant acceleration
+        (:func:`~reachset_ros.systems.late_reference.extrapolate`; counted ``late_reference``,
+        its age in ``reference_age_max_ns``; ``ref_late`` set); :data:`LOST` when that
         reference is older than ``reference_max_age`` (the caller stops). References older
         than the one used are dropped (commands never go back in stamp)."""
         ref = self.refs.pop(stamp, None)
+        self.ref_late = False
         if ref is not None:
             out = self.parse_reference(ref)
             if out is not None:
                 self.last_ref = (stamp, out)
                 self.pop_refs_before(stamp)     # older than a usable one: never needed again
-            return out
+                return out
+            late = True     # unusable: carried forward as a late one (holding q̇_d = 0 at speed leaves U_p)
         if not late:
             self.counters["no_reference"] += 1
             return None
@@ -495,6 +507,7 @@ class ControllerNode(Node):
             return LOST
         self.counters["late_reference"] += 1
         self.counters["reference_age_max_ns"] = max(self.counters["reference_age_max_ns"], age)
+        self.ref_late = True
         return late_reference.extrapolate(*self.last_ref[1], age * 1e-9)
 
     def on_estimate(self, msg, late=False):
@@ -547,6 +560,7 @@ class ControllerNode(Node):
                                 f"{float(self.get_parameter('reference_max_age').value) * 1e3:g} ms")
             braking = True
         if braking:
+            self.reentry.reset()
             u = self.braking_tick(stamp, q, qd)
         else:
             if ref is None:
@@ -554,10 +568,14 @@ class ControllerNode(Node):
             else:
                 q_d, qd_d, qdd_d = ref
                 self.check_reference_class(stamp, qdd_d)
+            reference_events.on_reference_tick(self, stamp, ref, self.ref_late)
             self.track_transient(stamp)
             u = np.empty(len(self.joints))
             for i, j in enumerate(self.joints):
                 u[i] = self.law_input(j, q[i], qd[i], d[i], q_d[i], qd_d[i], qdd_d[i])
+            if reference_events.beyond_u_p(self, stamp, u):     # out of class: never sent (issue 34.3)
+                self.reentry.reset()
+                u = self.braking_tick(stamp, q, qd)
         self.publish_command(msg.header.stamp, q, qd, u)
 
     def braking(self):

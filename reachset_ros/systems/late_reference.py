@@ -19,6 +19,13 @@ trapezoidal move; across a phase change within ``h`` it is off by at most
 arm moves on, the rule before) took the tracking error outside ``R*_e`` and the input
 outside ``U_p`` in the fifth long fault campaign (docs/reliability.md).
 
+The carried reference is in the class, but it is not the published one: when the references
+return after a phase switch, ``q_d`` and ``qd_d`` jump back (up to ``qdd_max h^2`` and
+``2 qdd_max h``), a step out of the class that ``R*_u ⊆ U_p`` and ``R*_e`` are certified for
+(0.2 s late: ``|u_p|`` 35.7 > ``U_p`` 26 in the nominal loop). The controller reports late
+ticks and such a re-entry, never as tracking, and stops when a tick of the re-entry's
+transient would leave ``U_p`` (:mod:`~reachset_ros.systems.reentry`, issue 34.3).
+
 Pure numpy; no ROS import. ``benchmarks/late_reference.py`` measures the extrapolation's
 error on the campaign's reference class against its age.
 """
@@ -33,8 +40,9 @@ __all__ = ["MAX_AGE_S", "extrapolate", "usable"]
 #: stamps right after a reset (the loop catching up faster than real time): a stop of the
 #: controller's own, then the monitor's, where the carried reference (at rest) was exact.
 #: At 0.2 s the worst error on the campaign's reference class is 0.058 rad
-#: (``benchmarks/late_reference.py``); what a jump back onto the reference does to the input
-#: is the monitor's to judge (torque beyond the limits leaves the model: a violation).
+#: (``benchmarks/late_reference.py``). The jump back onto the reference when references return
+#: is a re-entry out of the class (:mod:`~reachset_ros.systems.reentry`): reported, a transient,
+#: and a stop of the controller's own when its u_p would leave U_p (issue 34.3).
 MAX_AGE_S = 0.2
 
 

@@ -174,7 +174,7 @@ class TestControllerNode:
         simulator stepping on a stale command): every holding brake engages on
         /brake_command, the effort holds the last usable position (u_p = 0), the diagnostics
         say why, and only a cleared /safe_stop gives control back. A reference it cannot use
-        is treated as none (hold the measured position), counted."""
+        is treated as a late one (the newest usable earlier one carried forward), counted."""
         from reachset_msgs.msg import BrakeCommand
         proc, _, _ = controller
         bus.clear()
@@ -221,20 +221,22 @@ class TestControllerNode:
 
     @staticmethod
     def references_treated_as_none(bus, proc, name, before):
-        # references: a joint missing, a non-finite value, a short array -> treated as none:
-        # hold the measured position (u = -2 zeta omega qd)
+        # references: a joint missing, a non-finite value, a short array -> treated as late: the
+        # newest usable reference (all zeros, 4 ms older) carried forward (issue 34.3; before,
+        # held at the measured position with qd_d = 0, u = -2 zeta omega qd, which leaves U_p at speed)
         qd = np.array([0.3, -0.1])
         refs = [JointReference(name=[JOINTS[1]], position=[0.0], velocity=[0.0], acceleration=[0.0]),
                 JointReference(name=JOINTS, position=[0.0, 0.0], velocity=[0.0, 0.0], acceleration=[math.nan, 0.0]),
                 JointReference(name=JOINTS, position=[0.0], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])]
         for i, r in enumerate(refs):
             for _ in range(5):   # again if the estimate overtook the reference (then it was not read)
-                t = stamps(1)[0]
+                t0, t = stamps(2)
+                drive(bus, [t0])                 # a usable reference (zeros) just before
                 to_stamp(r.header.stamp, t)
                 bus.ref.publish(r)
                 time.sleep(0.05)
                 got = drive(bus, [t], qd=qd, reference=False)
-                np.testing.assert_allclose(got[t], -2 * 1.0 * 10.0 * qd, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(got[t], tracking_law(10.0, 1.0, qd=qd), rtol=0, atol=1e-9)
                 if bus.counters(name)["bad_reference"] - before["bad_reference"] == i + 1:
                     break
         c = bus.counters(name)
