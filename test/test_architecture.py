@@ -33,7 +33,7 @@ MAX_MODULE_LINES = 700
 MAX_FUNCTION_LINES = 100
 MAX_POSITIONAL = 8
 
-_LEAVES = {"errors", "atomic", "defaults"}
+_LEAVES = {"errors", "atomic", "defaults", "guarantees"}
 #: the pure core below the process and ROS layers
 _CORE = _LEAVES | {"sets", "systems", "robot", "conformance", "bags", "synthesis", "fleet", "sim"}
 _PROCESS = {"domain", "params_file", "processes"}
@@ -46,16 +46,18 @@ ALLOWED = {
     "errors": set(),
     # the registry of defaults (python-control's config.py pattern): a leaf every layer may fill
     "defaults": {"errors"},
+    # the guarantee's rows and the refusal naming one: a leaf every layer may raise
+    "guarantees": {"errors"},
     "atomic": {"errors"},
     "domain": {"errors"},
     "params_file": {"errors"},
     "sets": {"errors"},
-    "systems": {"errors", "defaults", "sets"},
+    "systems": {"errors", "defaults", "guarantees", "sets"},
     # bags: robot.lwa4p writes the imported LWA-4P recordings as bags (bags imports only errors)
     "robot": {"errors", "atomic", "bags"},
-    "conformance": {"errors", "atomic", "sets", "systems"},
+    "conformance": {"errors", "atomic", "guarantees", "sets", "systems"},
     "bags": {"errors"},
-    "synthesis": {"errors", "defaults", "sets", "systems", "conformance", "bags"},
+    "synthesis": {"errors", "defaults", "guarantees", "sets", "systems", "conformance", "bags"},
     "fleet": {"errors", "robot", "conformance", "bags", "synthesis"},
     "sim": {"errors", "defaults", "systems", "robot", "conformance", "bags"},
     "plots": {"errors", "conformance", "bags", "synthesis"},

@@ -4,7 +4,7 @@ Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args
 ``run`` prints its result (through :func:`emit`) and raises
 :class:`reachset_ros.errors.ReachsetError` for bad input.
 
-May import: everything below the command line: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.defaults`,
+May import: everything below the command line: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.defaults`, :mod:`reachset_ros.guarantees`,
 :mod:`reachset_ros.atomic`, :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
 :mod:`reachset_ros.robot`, :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`,
 :mod:`reachset_ros.synthesis`, :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`), the

@@ -47,7 +47,7 @@ batch sweep and the online monitor, which advances one tick at a time, produce b
 identical deviations and hence identical verdicts.
 
 May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
-:mod:`reachset_ros.errors` and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
+:mod:`reachset_ros.errors`, :mod:`reachset_ros.guarantees` and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
 nodes. Code inside reachset_ros imports from the submodules; ``from reachset_ros import conformance as cf; cf.sweep(...)`` is for users,
 tests and tools.
 """

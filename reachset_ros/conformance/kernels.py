@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import guarantees
 from ..errors import ReachsetError
 
 # ------------------------------------------------------------------ the compiled kernels
@@ -214,9 +215,9 @@ def require_minimum_horizon(plant, horizon, allow_weak=False):
     k_min = minimum_horizon(plant)
     below = horizon < k_min
     if below and not allow_weak:
-        raise ReachsetError(f"horizon {horizon} is below the minimum horizon {k_min} of this plant (the first "
-                            f"k* at which Theorem 1 constrains every alpha_W and alpha_V); use --horizon {k_min} "
-                            "or more, or --allow-weak-horizon to accept a weaker guarantee")
+        raise guarantees.refused("G1", f"horizon {horizon} is below the minimum horizon {k_min} of this plant (the "
+                                 f"first k* at which Theorem 1 constrains every alpha_W and alpha_V); use --horizon "
+                                 f"{k_min} or more, or --allow-weak-horizon to accept a weaker guarantee")
     return k_min, below
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import guarantees
 from ..atomic import write_yaml
 from ..errors import ReachsetError, first_line
 from .estimators import Estimator
@@ -244,13 +245,14 @@ def require_model_horizon(plant, horizon, joints, *, recorded, below, source):
     """
     k_min = minimum_horizon(plant)
     if recorded is not None and _int(recorded, "minimum_horizon") != k_min:
-        raise ReachsetError(f"{source}: minimum_horizon {recorded} is not the plant's minimum horizon {k_min}")
+        raise guarantees.refused("G1", f"{source}: minimum_horizon {recorded} is not the plant's minimum horizon "
+                                       f"{k_min}")
     shortest = min([horizon] + [j.horizon for j in joints.values()])
     if shortest < k_min and not below:
-        raise ReachsetError(f"{source}: horizon {shortest} is below the plant's minimum horizon {k_min} (Theorem 1 "
-                            "then leaves alpha_W unconstrained); identify with --horizon "
-                            f"{k_min} or more (a model identified with --allow-weak-horizon records "
-                            "horizon_below_minimum: true)")
+        raise guarantees.refused("G1", f"{source}: horizon {shortest} is below the plant's minimum horizon {k_min} "
+                                       "(Theorem 1 then leaves alpha_W unconstrained); identify with --horizon "
+                                       f"{k_min} or more (a model identified with --allow-weak-horizon records "
+                                       "horizon_below_minimum: true)")
     return k_min
 
 

@@ -39,8 +39,8 @@ Simulated recordings for tests, benchmarks and the docs live in
 :mod:`reachset_ros.bags.references`.
 
 May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
-:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.defaults` and
-:mod:`reachset_ros.errors`; never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read
+:mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.defaults`,
+:mod:`reachset_ros.guarantees` and :mod:`reachset_ros.errors`; never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read
 the optional reference/estimate topics); no ROS import.
 """
 from .config import (DEFAULT_CONFIG, PARAMS, PENALTY, U_MARGIN, SearchSpace, components_from_gains,

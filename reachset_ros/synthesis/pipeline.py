@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import conformance as cf
+from .. import guarantees
 from ..bags import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC, read_estimates, read_joint_series, read_references
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
@@ -461,7 +462,8 @@ def _reference_classes(names, refs, reference_class, model_classes, bags):
         if rc is None and not any(len(r) for r in refs.get(n, ())):
             where = ", ".join(str(b) for b in bags)
             what = (f"no {REFERENCE_TOPIC} topic" if not refs else f"no {REFERENCE_TOPIC} samples of joint {n}")
-            raise ReachsetError(f"{where}: {what}; record the references or give --reference-class "
-                                "qdd_max=F[,step_max=F] (the reference error is not zero on this plant, Appendix B)")
+            raise guarantees.refused("G11", f"{where}: {what}; record the references or give --reference-class "
+                                            "qdd_max=F[,step_max=F] (the reference error is not zero on this plant, "
+                                            "Appendix B)")
         out[n] = rc
     return out

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import linprog
 
 from .. import conformance as cf
+from .. import guarantees
 from ..errors import InfeasibleError, ReachsetError
 from .reference_error import (ReferenceClass, ReferenceMethod, class_reference_error, reference_error,
                               reference_windows)
@@ -187,22 +188,24 @@ class JointProblem:
         refs = tuple(references or ())
         qmax = max((float(np.abs(r.qdd).max()) for r in refs if len(r)), default=0.0)
         if qmax > u_ff * (1 + 1e-12):
-            raise ReachsetError(f"joint {name}: the references in the bags reach |qdd_d| = {qmax:.4g} rad/s^2, "
-                                f"outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
+            raise guarantees.refused("G5", f"joint {name}: the references in the bags reach |qdd_d| = {qmax:.4g} "
+                                           f"rad/s^2, outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
         if reference_class is not None:
             if not isinstance(reference_class, ReferenceClass):
                 raise ReachsetError(f"joint {name}: reference_class must be a ReferenceClass")
             if reference_class.qdd_max > u_ff * (1 + 1e-12):
-                raise ReachsetError(f"joint {name}: the reference class allows |qdd_d| <= {reference_class.qdd_max:g} "
-                                    f"rad/s^2, outside U_ff = [-{u_ff:g}, {u_ff:g}] (raise --u-ff)")
+                raise guarantees.refused("G5", f"joint {name}: the reference class allows |qdd_d| <= "
+                                               f"{reference_class.qdd_max:g} rad/s^2, outside U_ff = [-{u_ff:g}, "
+                                               f"{u_ff:g}] (raise --u-ff)")
             for r in refs:
                 why = reference_class.violation(r, plant.dt)
                 if why:
-                    raise ReachsetError(f"joint {name}: a recorded reference is not in the reference class "
-                                        f"{reference_class.spec}: {why}")
+                    raise guarantees.refused("G11", f"joint {name}: a recorded reference is not in the reference "
+                                                    f"class {reference_class.spec}: {why}")
         elif not any(len(r) for r in refs):
-            raise ReachsetError(f"joint {name}: no references and no reference class: the reference error "
-                                "(Appendix B) cannot be bounded; record the references or give a reference class")
+            raise guarantees.refused("G11", f"joint {name}: no references and no reference class: the reference "
+                                            "error (Appendix B) cannot be bounded; record the references or give a "
+                                            "reference class")
         thm = thm or cf.Theorem1.build(plant, horizon)
         try:
             if devs is None:

@@ -23,8 +23,8 @@ numpy/scipy:
   :func:`steady_state`): what the reference error of Appendix B and the simulated recordings
   run.
 
-May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.defaults` (registers the gains' defaults)
-and :mod:`reachset_ros.errors` only.
+May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.defaults` (registers the gains' defaults),
+:mod:`reachset_ros.guarantees` (a refusal names the row it protects) and :mod:`reachset_ros.errors` only.
 """
 from .closedloop import (SETTLING_TOLERANCE, Analysis, ClosedLoop, FeedbackLaw, Stability, analyze,
                          center_coefficients, close_loop, closed_loop_tick, radius_coefficients, settling_ticks,

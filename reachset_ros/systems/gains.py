@@ -19,7 +19,7 @@ import numpy as np
 
 from . import closedloop
 from .controllers import compensated_feedback, static_feedback
-from .. import defaults
+from .. import defaults, guarantees
 from ..errors import ReachsetError
 from .observers import extended_state_observer, high_gain_observer
 from .plant import lwa4p_joint_plant
@@ -232,7 +232,8 @@ class Gains:
 class Certificate:
     """Outcome of :func:`certify`: ``ok``, the ``reason`` when not, the certified
     ``ru = R*_u`` interval (None when the loop is unstable), the :class:`Analysis` of the
-    monitored sets, and the ``inflation`` and ``u_e_ff`` it was computed with."""
+    monitored sets, the ``inflation`` and ``u_e_ff`` it was computed with, and the ``row`` of
+    :data:`reachset_ros.guarantees.ROWS` a refusal protects ('' when ok)."""
 
     ok: bool
     reason: str
@@ -240,6 +241,7 @@ class Certificate:
     analysis: object
     inflation: float
     u_e_ff: tuple
+    row: str = ""
 
 
 #: Why :func:`certify` refuses a model joint that records no U_e,ff when the caller gives none.
@@ -325,26 +327,26 @@ def certify(gains: Gains, joint_sets, inflation: float, u_max: float, u_ff: floa
     if u_e_ff is None:
         other = recorded_for_other_gains(gains, joint_sets)
         if other:
-            return Certificate(False, other, None, None, inflation, ue)
+            return Certificate(False, other, None, None, inflation, ue, row="G11")
         if ue is None:
-            return Certificate(False, NO_U_E_FF, None, None, inflation, None)
+            return Certificate(False, NO_U_E_FF, None, None, inflation, None, row="G11")
     plant = plant or lwa4p_joint_plant()
     cl = closedloop.close_loop(plant, gains.build_observer(plant.dt), gains.build_controller())
     st = closedloop.stability(cl)
     if not st.stable:
-        return Certificate(False, f"closed loop unstable ({st.message})", None, None, inflation, ue)
+        return Certificate(False, f"closed loop unstable ({st.message})", None, None, inflation, ue, row="G7")
     s = 1.0 + inflation
     a = closedloop.analyze(cl, s * np.asarray(joint_sets.alpha_w, float), s * np.asarray(joint_sets.alpha_v, float),
                            u_ff=u_ff, c_w=joint_sets.c_w, c_v=joint_sets.c_v)
     if not a.stable:
-        return Certificate(False, f"closed loop unstable ({a.stability.message})", None, a, inflation, ue)
+        return Certificate(False, f"closed loop unstable ({a.stability.message})", None, a, inflation, ue, row="G7")
     lo, hi = a.ru[0] + min(ue[0], 0.0), a.ru[1] + max(ue[1], 0.0)
     ru = (float(lo), float(hi))
     if lo < -u_max or hi > u_max:
         why = (f"reachable input R*_u = [{lo:.4g}, {hi:.4g}] (radius {max(-lo, hi):.4g}) leaves "
                f"U_p = +-{u_max:g} rad/s^2 (sets inflated by 1 + {inflation:g}, |u_ff| <= {u_ff:g}, "
                f"U_e,ff = [{ue[0]:.3g}, {ue[1]:.3g}])")
-        return Certificate(False, why, ru, a, inflation, ue)
+        return Certificate(False, why, ru, a, inflation, ue, row="G7")
     return Certificate(True, "", ru, a, inflation, ue)
 
 
@@ -404,7 +406,7 @@ def certified_inflation(model, requested: float):
         best = max_certified_inflation(Gains.from_model(js.gains), js, u_max, u_ff, plant=model.plant)
         if best is None:
             c = certify(Gains.from_model(js.gains), js, 0.0, u_max, u_ff, plant=model.plant)
-            raise ReachsetError(f"joint {name}: {c.reason}")
+            raise guarantees.refused(c.row, f"joint {name}: {c.reason}")
         per[name] = float(best)
     return float(min([float(requested), *per.values()])), per
 
@@ -470,7 +472,7 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
         Naming the joint and the reason (unstable, R*_u outside U_p, no certificate).
     """
     if model is not None and abs(model.plant.dt - dt) > 1e-12 * dt:
-        raise ReachsetError(f"the model's dt {model.plant.dt:g} s differs from the nodes' dt {dt:g} s")
+        raise guarantees.refused("G4", f"the model's dt {model.plant.dt:g} s differs from the nodes' dt {dt:g} s")
     plant = model.plant if model is not None else lwa4p_joint_plant(dt=dt)
     u_max = list(u_max)
     laws, settling, certified, uncertified = {}, {}, {}, []
@@ -479,18 +481,18 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
         cl = closedloop.close_loop(plant, obs, ctrl)
         st = closedloop.stability(cl)
         if not st.stable:
-            raise ReachsetError(f"joint {j}: closed loop unstable ({st.message})")
+            raise guarantees.refused("G7", f"joint {j}: closed loop unstable ({st.message})")
         js = model.joints.get(j) if model is not None else None
         if js is not None:
             ue = u_e_ff_for(g, js, model.plant, u_ff) if u_e_ff_for is not None else None
             c = certify(g, js, model.inflation, float(u_max[i]), u_ff, u_e_ff=ue, plant=model.plant)
             if not c.ok:
-                raise ReachsetError(f"joint {j}: {c.reason}")
+                raise guarantees.refused(c.row, f"joint {j}: {c.reason}")
             certified[j] = c
         else:
             if not allow_uncertified:
-                raise ReachsetError(
-                    f"joint {j}: no model covers these gains ({'no model_file' if model is None else 'not in the model'}"
+                raise guarantees.refused(
+                    "G7", f"joint {j}: no model covers these gains ({'no model_file' if model is None else 'not in the model'}"
                     "): R*_u inside U_p cannot be certified; give a model_file, or set allow_uncertified to run "
                     "them on closed-loop stability alone")
             certified[j] = None

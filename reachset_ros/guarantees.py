@@ -1,0 +1,70 @@
+"""The guarantee's assumptions, one row each, and the refusal that names the row it protects.
+
+A guarantee of this suite ("conformant", "inside R*_e", "R*_u within U_p", "the arm is
+stopped") holds only under assumptions: the paper's Theorem 1 needs a horizon of at least the
+plant's minimum, the certificate ``R*_u ⊆ U_p`` needs the reference to lie in the class ``U_ff``
+it was computed for, and so on. Each assumption is a row of :data:`ROWS`, with an id (``G1``,
+``G2``, ...) that docs/theory.md's table "Assumptions at a glance" uses too (a test keeps the two
+equal): there each row says where it is enforced (at identify, at synthesis, at the gain gate, at
+start-up, every tick) and which test shows it.
+
+Code that refuses a model, a gain change or a start-up because it would void a row raises
+:func:`refused` with the row's id: the one-line message ends with ``[guarantee G7: R*_u lies
+within U_p for the sets the monitor checks]``, so the user reads which promise the input would
+have broken.
+
+Syntax::
+
+    raise guarantees.refused("G1", "horizon 0 is below the minimum horizon 2")
+
+Pure Python, a leaf (imports only :mod:`reachset_ros.errors`).
+"""
+from __future__ import annotations
+
+from .errors import ReachsetError
+
+__all__ = ["ROWS", "GuaranteeRefused", "refused", "tag"]
+
+#: id -> the assumption, in the words of docs/theory.md's table "Assumptions at a glance"
+ROWS = {
+    "G1": "k* is at least the plant's minimum horizon (every alpha in some Theorem-1 row)",
+    "G2": "a test case never spans two recordings, a gap or an invalid sample",
+    "G3": "the monitor checks, every tick, the test cases the model needs",
+    "G4": "the loop that runs is the loop that was certified (gains, observer, law, dt)",
+    "G5": "the reference lies in the class R_u is certified for (|qdd_d| <= u_ff, continuous)",
+    "G6": "tracking is judged against R*_e only from zero initial error (after the transient)",
+    "G7": "R*_u lies within U_p for the sets the monitor checks",
+    "G8": "after a safe stop the arm is at rest",
+    "G9": "a margin that is not a number fails closed",
+    "G10": "R_e and R_u are outer bounds in floating point",
+    "G11": "the reference error is bounded for every reference the controller accepts",
+}
+
+
+class GuaranteeRefused(ReachsetError):
+    """An input refused because it would void a row of :data:`ROWS` (``.row`` names it)."""
+
+    def __init__(self, message: str, *, row: str):
+        super().__init__(message)
+        self.row = row
+
+
+def tag(row: str) -> str:
+    """``"[guarantee G7: R*_u lies within U_p ...]"``: the words a refusal ends with."""
+    return f"[guarantee {row}: {ROWS[row]}]"
+
+
+def refused(row: str, message: str) -> GuaranteeRefused:
+    """The error for an input that would void row ``row``: ``message`` (one line) followed by
+    :func:`tag`. Raise it where the input is refused.
+
+    Parameters
+    ----------
+    row : str
+        A key of :data:`ROWS` (``KeyError`` otherwise: a refusal must name a real row).
+    message : str
+        What was refused and why, one line.
+    """
+    lines = str(message).splitlines() or [""]
+    lines[0] = f"{lines[0]} {tag(row)}"
+    return GuaranteeRefused("\n".join(lines), row=row)
