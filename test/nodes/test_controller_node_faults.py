@@ -587,6 +587,7 @@ class TestMonitorStalled:
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
             assert bus.wait(lambda: "safe stop inactive: tracking" in ctl.log.read_text(), 30), ctl.log.read_text()
+            assert bus.wait(lambda: mon.status_pub.get_subscription_count() >= 2, 30)    # this test's, the controller's
             # a healthy monitor: each tick waits for its verdict (paced by the monitor, however slow)
             bus.clear()
             ts_all = stamps(6 * n_ticks)        # one run of stamps: no gap between the two halves
@@ -607,9 +608,10 @@ class TestMonitorStalled:
             assert len(bus.status) == n_status                      # no verdict while blocked
             log = ctl.log.read_text()
             assert "stop: monitor stalled" in log and "monitor lost" not in log, log[-1500:]
-            # engaged once the newest verdict (the tick before ts[0]) is more than n_ticks behind
+            # engaged once the newest verdict (the tick before ts[0], or one of the few before it
+            # if the controller had not read the last ones yet) is more than n_ticks behind
             first = next(i for i, t in enumerate(ts) if all(brakes_at(t)[-1].engage))
-            assert first == n_ticks, first
+            assert n_ticks - 3 <= first <= n_ticks, first
         finally:
             gate.set()
             processes.stop([ctl])
