@@ -43,8 +43,8 @@ controller's own ("reference lost": brakes, latched until the monitor's reset), 
 neither holding an old reference nor carrying it further keeps the input in ``U_p``.
 
 The monitor is watched (:mod:`.monitor_health`): a ``/safe_stop`` publisher whose liveliness
-is lost (``monitor lost``) and, while tracking under a monitor, no verdict on
-``/conformance/status`` within ``monitor_verdict_ticks`` ticks of the tick commanded (its
+is lost (``monitor lost``) and, once the monitor has sent verdicts, none on
+``/conformance/status`` within ``monitor_verdict_ticks`` ticks of a tick tracked (its
 executor blocked: ``monitor stalled``) are stops of the controller's own. Every stop of its
 own is cleared only by the monitor's audited reset (``~/reset``, ``~/reset_stop``: the
 clean-tick rule, a ``PRIVILEGED`` line), never by a monitor's start state or a lifecycle
@@ -348,7 +348,6 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
 
     def on_safe_stop(self, msg):
         active = bool(msg.active)
-        self.monitor_heard = True
         if not active and self.own_stop is not None and not monitor_health.is_audited_reset(msg):
             # a (new) monitor's start state, a managed monitor's activation: no reset of a stop
             # of this node's own, which only the audited ~/reset clears (issue 34.9)

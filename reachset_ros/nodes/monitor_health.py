@@ -8,21 +8,25 @@ tick is checked. The guarantee needs the checks, so the controller holds a deadl
 monitor's *verdicts* (``/conformance/status``, one per checked tick, stamped with the
 measurement's stamp, the same stamps as the controller's estimates and commands):
 
-* while it tracks under a monitor (it has heard a ``/safe_stop`` or a status), the newest
-  stamp the monitor checked must be no more than ``monitor_verdict_ticks`` ticks (of ``dt``)
-  behind the stamp of the tick the controller commands; the deadline runs from the first
-  tracked tick after each stop, hold or start (the monitor checks nothing the controller has
-  not yet commanded, so that tick is the earliest it could have checked), so a monitor that
-  resumes after a stop has ``monitor_verdict_ticks`` ticks to catch up;
-* before the first verdict ever received (DDS may match the status topic later than the
-  ``/safe_stop`` one on a loaded machine: a wall-time matter), the allowance is
-  ``monitor_first_verdict_timeout`` seconds of wall time from the first tracked tick;
+* once the monitor has sent a verdict, at every tick the controller tracks, the newest stamp
+  the monitor checked must be no more than ``monitor_verdict_ticks`` ticks (of ``dt``) behind
+  the stamp of the tick commanded; the deadline runs from the first tracked tick after each
+  stop or hold (the monitor checks nothing the controller has not commanded yet, so that tick
+  is the earliest it could have checked): a monitor that resumes after a stop has
+  ``monitor_verdict_ticks`` ticks to catch up;
 * a verdict newer than the tick (a clock that jumped back, e.g. a restarted simulation) is
-  forgotten and the allowance starts again.
+  forgotten: the deadline waits for a verdict on the new clock;
+* a stamp jump forward by more than the limit while tracking is a stop too: no verdict can
+  cover it.
 
-Stamps, not wall time, wherever there is a verdict: a slow machine whose loop runs slower
-than real time slows the stamps too, so it does not stop falsely. Missing the deadline is a
-stop of the controller's own, ``monitor stalled``, latched like the others.
+Stamps, not wall time: a slow machine whose loop runs slower than real time slows the stamps
+too, so it does not stop falsely. Missing the deadline is a stop of the controller's own,
+``monitor stalled``, latched like the others.
+
+Before its first verdict a monitor is not relied on by this deadline (no wall-time allowance):
+a monitor without a model (``reachset demo`` trains with one: the training runs unmonitored)
+sends none, and one that has a model holds the arm with its own start-up stop until it has
+checked k* + 1 ticks (issue 34.1), so a monitor stalled before its first check never releases it.
 
 **Only the audited reset clears a stop of the controller's own** (issue 34.9). The monitor
 publishes ``active: false`` for several reasons: its start state (``MONITOR_STARTED``), the
@@ -62,9 +66,6 @@ defaults.register("controller", {
              "(/conformance/status) is more than this many ticks behind the tick it commands: 1 s at 4 ms, the "
              "/safe_stop liveliness lease (a dead or frozen process is caught as fast); measured in the node "
              "tests, a healthy monitor trails by a few ticks (issue 34.2)"),
-    "monitor_first_verdict_timeout": (
-        5.0, "s of wall time from the first tracked tick under a monitor to its first verdict ever received; "
-             "DDS matching of the status topic on a loaded machine is what it allows for (issue 34.2)"),
 }, owner=__name__)
 
 
@@ -75,17 +76,13 @@ def is_audited_reset(msg) -> bool:
 
 
 def declare_parameters(node):
-    """Declare ``monitor_verdict_ticks`` and ``monitor_first_verdict_timeout`` (defaults
-    ``controller.*``) on the controller ``node``."""
+    """Declare ``monitor_verdict_ticks`` (default ``controller.monitor_verdict_ticks``) on the controller ``node``."""
     node.declare_parameter(
         "monitor_verdict_ticks", defaults.get("controller.monitor_verdict_ticks"),
-        desc("while tracking under a monitor: a stop of the controller's own (monitor stalled) when the newest "
-             "stamp the monitor checked (/conformance/status) is more than this many ticks (dt) behind the tick "
-             "commanded (a blocked monitor keeps its DDS liveliness)", 1, 10**9, integer=True))
-    node.declare_parameter(
-        "monitor_first_verdict_timeout", defaults.get("controller.monitor_first_verdict_timeout"),
-        desc("while tracking under a monitor that has not sent a verdict yet: a stop of the controller's own "
-             "(monitor stalled) after this long (s, wall) from the first tracked tick", 0.01, 1e6))
+        desc("once the monitor has sent a verdict: a stop of the controller's own (monitor stalled) when the "
+             "newest stamp it checked (/conformance/status) is more than this many ticks (dt) behind the tick "
+             "commanded, counted from the first tick tracked after a stop or hold (a monitor whose executor is "
+             "blocked keeps its DDS liveliness)", 1, 10**9, integer=True))
 
 
 @dataclass(kw_only=True)
@@ -96,15 +93,11 @@ class VerdictDeadline:
     ----------
     max_lag_ns : int
         Largest lag, ns of stamp time, of the newest verdict behind the commanded tick.
-    first_timeout_s : float
-        Wall-time allowance before the first verdict ever received.
     """
 
     max_lag_ns: int
-    first_timeout_s: float
     newest_ns: int | None = None     # the newest stamp the monitor checked (None: none yet)
-    since_ns: int | None = None      # the first tracked tick since the deadline was armed
-    since_wall: float | None = None  # its wall time (monotonic)
+    since_ns: int | None = None      # the first tracked tick since the last stop or hold
     lag_max_ns: int = 0              # the largest lag seen while tracking (/diagnostics)
 
     def verdict(self, stamp_ns: int) -> None:
@@ -114,19 +107,16 @@ class VerdictDeadline:
 
     def pause(self) -> None:
         """The controller does not track (a stop, a hold): the deadline starts again at the next tracked tick."""
-        self.since_ns = self.since_wall = None
+        self.since_ns = None
 
-    def check(self, stamp_ns: int, wall: float) -> str | None:
-        """At a tracked tick ``stamp_ns`` (wall time ``wall``): None, or why the monitor is stalled."""
+    def check(self, stamp_ns: int) -> str | None:
+        """At a tracked tick ``stamp_ns``: None, or why the monitor is stalled."""
         if self.since_ns is None or stamp_ns < self.since_ns - NEW_CLOCK_NS:
-            self.since_ns, self.since_wall = stamp_ns, wall
+            self.since_ns = stamp_ns
         if self.newest_ns is not None and self.newest_ns > stamp_ns:
             self.newest_ns = None             # checked on another clock: none on this one yet
-            self.since_ns, self.since_wall = stamp_ns, wall
+            self.since_ns = stamp_ns
         if self.newest_ns is None:
-            if wall - self.since_wall > self.first_timeout_s:
-                return (f"no verdict (/conformance/status) from the monitor {wall - self.since_wall:.2f} s after "
-                        f"tracking began (monitor_first_verdict_timeout {self.first_timeout_s:g} s)")
             return None
         lag = stamp_ns - max(self.newest_ns, self.since_ns)
         self.lag_max_ns = max(self.lag_max_ns, stamp_ns - self.newest_ns if self.newest_ns >= self.since_ns else 0)
@@ -149,8 +139,7 @@ class MonitorWatch:
                                  event_callbacks=SubscriptionEventCallbacks(liveliness=self.on_monitor_liveliness))
         self.monitor_lost = None     # wall time at which the last live /safe_stop publisher was lost
         self.create_subscription(ConformanceStatus, "conformance/status", self.on_monitor_status, 10)
-        self.monitor_heard = False   # a /safe_stop or a status came: the loop runs under a monitor
-        self.verdicts = VerdictDeadline(max_lag_ns=0, first_timeout_s=0.0)
+        self.verdicts = VerdictDeadline(max_lag_ns=0)
 
     def on_monitor_liveliness(self, info):
         """The /safe_stop publishers' liveliness changed (issue 17.2). When the last live one
@@ -172,19 +161,16 @@ class MonitorWatch:
 
     def on_monitor_status(self, msg):
         """A verdict of the monitor (/conformance/status): the newest stamp it checked."""
-        self.monitor_heard = True
         self.verdicts.verdict(stamp_ns(msg.header.stamp))
 
     def check_monitor_verdicts(self, stamp, braking):
-        """The deadline on the monitor's verdicts at a tick about to be tracked under a
-        monitor; missed: a stop of the node's own (monitor stalled). Returns whether the
-        tick brakes."""
-        if braking or not self.monitor_heard:
+        """The deadline on the monitor's verdicts at a tick about to be tracked; missed: a stop
+        of the node's own (monitor stalled). Returns whether the tick brakes."""
+        if braking:
             self.verdicts.pause()
             return braking
         self.verdicts.max_lag_ns = int(self.get_parameter("monitor_verdict_ticks").value) * int(round(self.dt * 1e9))
-        self.verdicts.first_timeout_s = float(self.get_parameter("monitor_first_verdict_timeout").value)
-        why = self.verdicts.check(stamp, time.monotonic())
+        why = self.verdicts.check(stamp)
         if why is None:
             return False
         self.latch_own_stop(stamp, "monitor stalled", why)

@@ -209,7 +209,8 @@ class TestControllerNode:
             # (the reason of the monitor's audited reset: only that clears a stop of the controller's own)
             stop_pub.publish(SafeStop(active=False, kind="reset", reason="reset through ~/reset (test)"))
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1)), tracking_law(10.0, 1.0)), 15)
-            assert not any(list(brakes)[-1].engage)
+            # (the tick's /brake_command is published after its /plant_input: wait for it)
+            assert bus.wait(lambda: not any(list(brakes)[-1].engage), 15)
         except BaseException:
             bus.caller.destroy_publisher(stop_pub)
             raise
@@ -566,7 +567,7 @@ class TestMonitorStalled:
         threading.Thread(target=ex.spin, daemon=True).start()
         n_ticks = 20
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True,
-                               verdicts={"monitor_verdict_ticks": n_ticks, "monitor_first_verdict_timeout": 5.0})
+                               verdicts={"monitor_verdict_ticks": n_ticks})
         brakes = []
         bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
                                                 QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
