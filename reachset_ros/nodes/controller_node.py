@@ -26,7 +26,7 @@ category 1 (``stop_category``, the default), each joint's holding brake engaged 
 (``stop_max_time``, ``stop_max_travel``); only a cleared stop releases the brakes and gives
 control back. An estimate it cannot use (non-finite, a joint missing) engages every brake
 at once and latches a stop of its own (``no usable estimate``, logged, on ``/diagnostics``)
-until the monitor's stop is cleared; the effort command of such a tick holds the last usable
+until the monitor's audited reset; the effort command of such a tick holds the last usable
 position (u_p = 0), so the drives always get a command. With ``wait_for_monitor`` it also
 holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
 the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
@@ -44,6 +44,14 @@ neither holding an old reference nor carrying it further keeps the input in ``U_
 Late ticks, a re-entry out of the certified class when references return, and the hold
 without any reference are reported, never as tracking; beyond ``U_p`` they are a stop of
 the controller's own (:mod:`~reachset_ros.nodes.reference_events`, issue 34.3).
+
+The monitor is watched (:mod:`.monitor_health`): a ``/safe_stop`` publisher whose liveliness
+is lost (``monitor lost``) and, once the monitor has sent verdicts, none on
+``/conformance/status`` within ``monitor_verdict_ticks`` ticks of a tick tracked (its
+executor blocked: ``monitor stalled``) are stops of the controller's own. Every stop of its
+own is cleared only by the monitor's audited reset (``~/reset``, ``~/reset_stop``: the
+clean-tick rule, a ``PRIVILEGED`` line), never by a monitor's start state or a lifecycle
+transition of either node.
 """
 import time
 
@@ -51,9 +59,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from reachset_msgs.msg import BrakeCommand, JointEstimate, JointReference, PlantInput, SafeStop
+from reachset_msgs.msg import BrakeCommand, JointEstimate, JointReference, PlantInput
 from std_msgs.msg import Float64MultiArray
 
 from ..conformance import model as mdl
@@ -62,10 +69,11 @@ from ..errors import ReachsetError
 from ..systems import late_reference
 from ..systems.stopping import StopPolicy, StopState, stop_tick
 from . import reference_events
-from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
+from .common import MONITOR_STARTED, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
+from . import monitor_health
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
@@ -81,7 +89,7 @@ LOST = object()
 REFERENCE_BUFFER = 500
 
 
-class ControllerNode(Node):
+class ControllerNode(monitor_health.MonitorWatch, Node):
     def __init__(self, **node_kwargs):
         super().__init__("controller_node", **node_kwargs)
         declare_realtime_priority(self)
@@ -118,6 +126,7 @@ class ControllerNode(Node):
                                desc("|qd| below which a joint is at rest, rad/s (category 1: its brake engages)",
                                     1e-5, 1.0))
         declare_gain_parameters(self)
+        monitor_health.declare_parameters(self)
         self.joints = list(self.get_parameter("joints").value)
         self.dt = float(self.get_parameter("dt").value)
         self.robot = None            # set by configure()
@@ -152,11 +161,7 @@ class ControllerNode(Node):
         self.brake_pub = self.create_publisher(BrakeCommand, "brake_command", TICK_QOS)
         self.create_subscription(JointEstimate, "observer/estimate", self.on_estimate, TICK_QOS)
         self.create_subscription(JointReference, "reference", self.on_reference, TICK_QOS)
-        # a monitor that died or froze is a stop: the DDS liveliness of the /safe_stop publishers
-        # (automatic, lease MONITOR_LEASE_S), not a timer of this node's own
-        self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS,
-                                 event_callbacks=SubscriptionEventCallbacks(liveliness=self.on_monitor_liveliness))
-        self.monitor_lost = None     # wall time at which the last live /safe_stop publisher was lost
+        self.watch_monitor()         # /safe_stop, its liveliness, the deadline on the verdicts
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(0.002, self.on_wait_timer)
@@ -233,6 +238,7 @@ class ControllerNode(Node):
             values.update(reference_out_of_class_last_ns=str(stamp), reference_out_of_class_joint=joint,
                           reference_out_of_class_qdd_d=repr(float(acc)))
         values["u_ff_bound"] = repr(self.u_ff)
+        values["monitor_verdict_lag_max_ns"] = str(self.verdicts.lag_max_ns)
         for j, k in self.settling.items():
             values[f"settling_ticks/{j}"] = str(k)
         values["transient_ticks"] = str(max(self.settling.values(), default=0))
@@ -349,30 +355,14 @@ class ControllerNode(Node):
         t.sec, t.nanosec = divmod(int(stamp), 1_000_000_000)
         self.publish_brakes(t)
 
-    def on_monitor_liveliness(self, info):
-        """The /safe_stop publishers' liveliness changed (issue 17.2). When the last live one
-        is lost (the monitor was killed, froze, or its host went away) after the stop state was
-        known, every brake engages: a stop of this node's own, cleared only by a reset of the
-        monitor, not by a new monitor's start state."""
-        if info.alive_count > 0 or info.alive_count_change >= 0:
-            if self.monitor_lost is not None and info.alive_count > 0:
-                self.get_logger().info("a /safe_stop publisher is alive again; the stop stays until ~/reset")
-                self.monitor_lost = None
-            return
-        self.monitor_lost = time.monotonic()
-        if not self.stop_known:          # never heard from a monitor: wait_for_monitor decides
-            return
-        stamp = self.last_command_stamp if self.last_command_stamp is not None else self.get_clock().now().nanoseconds
-        self.latch_own_stop(stamp, "monitor lost",
-                            f"no live /safe_stop publisher (liveliness lease {MONITOR_LEASE_S:g} s): the monitor "
-                            "died or froze")
-
     def on_safe_stop(self, msg):
         active = bool(msg.active)
-        if not active and self.own_stop is not None and msg.reason == MONITOR_STARTED:
-            # a (new) monitor's start state is no reset of a stop of this node's own
+        if not active and self.own_stop is not None and not monitor_health.is_audited_reset(msg):
+            # a (new) monitor's start state, a managed monitor's activation: no reset of a stop
+            # of this node's own, which only the audited ~/reset clears (issue 34.9)
             self.stop_known = True
-            self.get_logger().warning(f"a monitor started; the controller's own stop ({self.own_stop}) stays until "
+            what = "a monitor started" if msg.reason == MONITOR_STARTED else f"the monitor released ({msg.reason})"
+            self.get_logger().warning(f"{what}; the controller's own stop ({self.own_stop}) stays until "
                                       "the monitor's ~/reset")
             return
         if not active and (self.stop_active or not self.stop_known):
@@ -551,6 +541,7 @@ class ControllerNode(Node):
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(d))):
             self.unusable_estimate(msg, "non-finite values")
             return
+        braking = self.check_monitor_verdicts(stamp, braking)
         self.last_q = q
         ref = None if braking else self.reference_at(stamp, late)
         if ref is LOST:

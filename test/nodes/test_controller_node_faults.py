@@ -17,7 +17,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from reachset_msgs.msg import JointEstimate, JointReference, SafeStop
 
-from helpers import HISTORY, HORIZON, JOINTS, stamps, stream, write_model
+from helpers import HISTORY, HORIZON, JOINTS, NO_VERDICTS, stamps, stream, write_model
 from reachset_ros import processes
 from reachset_ros.nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, stamp_ns, to_stamp
 
@@ -38,13 +38,15 @@ def wait_exit(proc, timeout):
     return True
 
 
-def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2):
+def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2, verdicts=None):
     """A controller_node for these tests: category 2 by default (the braking law's output is
     what they check; the holding brakes of category 1 are tested in test_stopping.py and
-    test_nodes.py)."""
+    test_nodes.py); ``verdicts``: its deadline on the monitor's verdicts (default
+    :data:`helpers.NO_VERDICTS`: the monitor of these tests, if any, checks no loop of the
+    controller's; TestMonitorStalled sets its own)."""
     params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0],
               "wait_for_monitor": wait_for_monitor, "stop_category": stop_category,
-              "allow_uncertified": model is None}
+              "allow_uncertified": model is None, **(NO_VERDICTS if verdicts is None else verdicts)}
     if model is not None:
         params["model_file"] = str(model)
     return processes.start("controller_node", params, d)
@@ -204,9 +206,11 @@ class TestControllerNode:
             got = drive(bus, stamps(2))
             assert got and all(np.array_equal(u, [0.0, 0.0]) for u in got.values()), got
             # the reset (a cleared /safe_stop) releases the brakes and gives control back
-            stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: reset"))
+            # (the reason of the monitor's audited reset: only that clears a stop of the controller's own)
+            stop_pub.publish(SafeStop(active=False, kind="reset", reason="reset through ~/reset (test)"))
             assert bus.wait(lambda: outputs_match(drive(bus, stamps(1)), tracking_law(10.0, 1.0)), 15)
-            assert not any(list(brakes)[-1].engage)
+            # (the tick's /brake_command is published after its /plant_input: wait for it)
+            assert bus.wait(lambda: not any(list(brakes)[-1].engage), 15)
         except BaseException:
             bus.caller.destroy_publisher(stop_pub)
             raise
@@ -525,6 +529,98 @@ class TestMonitorLost:
             processes.stop([ctl, mon])
             if pub is not None:
                 bus.caller.destroy_publisher(pub)    # its latched message must not reach later tests
+
+
+class TestMonitorStalled:
+    def test_a_monitor_whose_executor_is_blocked_is_a_stop(self, bus, tmp_path, monkeypatch):
+        """Issue 34.2: a monitor whose executor is blocked (not its process) keeps its DDS
+        liveliness, so the liveliness check never fires; the controller's deadline on the
+        monitor's verdicts (/conformance/status) does. A real MonitorNode runs in this process
+        on its own executor thread, checking the controller's loop (the test sends /joint_states
+        at rest, the controller's /plant_input is u = 0); one of its callbacks then blocks on an
+        event. While it checks, the controller tracks (paced by the verdicts, three times the
+        deadline); once blocked, the controller brakes on its own (``monitor stalled``, every
+        brake), and not through the liveliness path. Before: it went on tracking unchecked."""
+        import functools
+        import threading
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.parameter import Parameter
+        from reachset_msgs.msg import BrakeCommand
+        from reachset_ros.nodes.monitor_node import MonitorNode
+        assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
+        path = write_model(tmp_path / "m.yaml")
+        overrides = [Parameter("model_file", value=str(path)), Parameter("max_missing_ticks", value=10000),
+                     Parameter("reset_clean_ticks", value=0), Parameter("window_dir", value=str(tmp_path / "w"))]
+        # MonitorNode takes no node arguments: its parameters as overrides of this construction only
+        monkeypatch.setattr(Node, "__init__", functools.partialmethod(Node.__init__, parameter_overrides=overrides))
+        mon = MonitorNode()
+        monkeypatch.undo()
+        gate, blocked = threading.Event(), threading.Event()
+        gate.set()
+
+        def blocker():                  # the executor's thread waits here once the gate is closed
+            if not gate.is_set():
+                blocked.set()
+                gate.wait()
+        mon.create_timer(0.01, blocker)
+        ex = SingleThreadedExecutor()
+        ex.add_node(mon)
+        threading.Thread(target=ex.spin, daemon=True).start()
+        n_ticks = 20
+        ctl = start_controller(tmp_path / "c", wait_for_monitor=True,
+                               verdicts={"monitor_verdict_ticks": n_ticks})
+        brakes = []
+        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        zero = [0.0, 0.0]
+
+        def tick(t):
+            r = JointReference(name=JOINTS, position=zero, velocity=zero, acceleration=zero)
+            e = JointEstimate(name=JOINTS, position=zero, velocity=zero, disturbance=zero)
+            to_stamp(r.header.stamp, t)
+            to_stamp(e.header.stamp, t)
+            bus.ref.publish(r)
+            bus.est.publish(e)
+            bus.send_y(t, JOINTS, zero)
+
+        def brakes_at(t):
+            return [b for b in list(brakes) if stamp_ns(b.header.stamp) == t]
+        try:
+            assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
+                            30), ctl.log.read_text()
+            assert bus.wait(lambda: "safe stop inactive: tracking" in ctl.log.read_text(), 30), ctl.log.read_text()
+            assert bus.wait(lambda: mon.status_pub.get_subscription_count() >= 2, 30)    # this test's, the controller's
+            # a healthy monitor: each tick waits for its verdict (paced by the monitor, however slow)
+            bus.clear()
+            ts_all = stamps(6 * n_ticks)        # one run of stamps: no gap between the two halves
+            for t in ts_all[:3 * n_ticks]:
+                tick(t)
+                assert bus.wait(lambda: bus.statuses([t, t]) and brakes_at(t), 15), (t, ctl.log.read_text()[-800:])
+                assert not any(brakes_at(t)[-1].engage), ctl.log.read_text()[-800:]
+            assert "monitor stalled" not in ctl.log.read_text()
+            # its executor blocked: the process and its DDS participant live on
+            gate.clear()
+            assert blocked.wait(15)
+            n_status = len(bus.status)
+            ts = ts_all[3 * n_ticks:]
+            for t in ts:
+                tick(t)
+                bus.wait(lambda: brakes_at(t), 15)
+            assert bus.wait(lambda: all(brakes_at(ts[-1])[-1].engage), 15), ctl.log.read_text()[-800:]
+            assert len(bus.status) == n_status                      # no verdict while blocked
+            log = ctl.log.read_text()
+            assert "stop: monitor stalled" in log and "monitor lost" not in log, log[-1500:]
+            # engaged once the newest verdict (the tick before ts[0], or one of the few before it
+            # if the controller had not read the last ones yet) is more than n_ticks behind
+            first = next(i for i, t in enumerate(ts) if all(brakes_at(t)[-1].engage))
+            assert n_ticks - 3 <= first <= n_ticks, first
+        finally:
+            gate.set()
+            processes.stop([ctl])
+            bus.listener.destroy_subscription(bsub)
+            ex.shutdown()
+            mon.destroy_node()
 
 
 def start_stop_monitor(tmp_path):

@@ -13,7 +13,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from reachset_msgs.msg import BrakeCommand, ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 
-from helpers import JOINTS, PUB_QOS, Recorder, stream, write_model
+from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, stream, write_model
 from reachset_ros import processes
 from reachset_ros.nodes.common import SAFE_STOP_QOS, to_stamp
 
@@ -128,7 +128,7 @@ def test_controller_lifecycle(ros, tmp_path):
             time.sleep(0.004)
 
     params = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
-              "stop_category": 1}
+              "stop_category": 1, **NO_VERDICTS}      # the test's /safe_stop: no monitor, no verdicts
     bad = processes.start("controller_lifecycle_node", {**params, "allow_uncertified": False}, tmp_path,
                        node_name="bad_ctl")
     ctl = processes.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
@@ -166,4 +166,89 @@ def test_controller_lifecycle(ros, tmp_path):
         assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
     finally:
         processes.stop([bad, ctl])
+        rec.close()
+
+
+def test_lifecycle_transitions_never_clear_a_stop_of_the_controllers_own(ros, tmp_path):
+    """Issue 34.9: a stop of the controller's own (here: no usable estimate, a NaN) stays
+    latched through the controller's deactivate/activate and cleanup/configure/activate and
+    through the managed monitor's deactivate/activate (which releases the monitor's lifecycle
+    stop: an inactive /safe_stop that is no reset); only the monitor's audited ``~/reset``
+    clears it. Before: the monitor's activation released the controller's own stop, without
+    the reset's audit line and clean-tick rule."""
+    from std_srvs.srv import Trigger
+    from reachset_ros.nodes.monitor_health import AUDITED_RESET
+    rec = Recorder("lc_own_listener", {"brake_command": BrakeCommand, "safe_stop": SafeStop})
+    est_pub = ros.create_publisher(JointEstimate, "observer/estimate", PUB_QOS)
+    ref_pub = ros.create_publisher(JointReference, "reference", PUB_QOS)
+    k = [0]
+
+    def tick(n=25, position=(0.1, -0.2)):
+        for _ in range(n):
+            k[0] += 1
+            st = 10**18 + 10**15 + k[0] * 4_000_000
+            e = JointEstimate(name=JOINTS, position=list(position), velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            r = JointReference(name=JOINTS, position=[0.3, 0.1], velocity=[0.0, 0.0], acceleration=[0.0, 0.0])
+            to_stamp(e.header.stamp, st)
+            to_stamp(r.header.stamp, st)
+            ref_pub.publish(r)
+            est_pub.publish(e)
+            time.sleep(0.004)
+
+    brakes, stops = rec.msgs["brake_command"], rec.msgs["safe_stop"]
+
+    def brakes_after_ticks():
+        """The brakes commanded after 25 more ticks (their last /brake_command), [] if none came."""
+        n = len(brakes)
+        tick()
+        if not rec.wait(lambda: len(brakes) >= n + 20, 20):
+            return []
+        time.sleep(0.2)
+        return list(brakes[-1][1].engage)
+
+    def released():
+        b = brakes_after_ticks()
+        return bool(b) and not any(b)
+
+    def engaged():
+        b = brakes_after_ticks()
+        return bool(b) and all(b)
+
+    # the monitor checks no loop here (no /joint_states): the deadline on its verdicts off in effect
+    params = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
+              "stop_category": 1, "wait_for_monitor": True, **NO_VERDICTS}
+    mon = processes.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
+                                                  "window_dir": str(tmp_path / "w"), "reset_clean_ticks": 0,
+                                                  "max_missing_ticks": 10000}, tmp_path, node_name="monitor_node")
+    ctl = processes.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
+    try:
+        for tid in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
+            assert transition(ros, "monitor_node", tid)
+            assert transition(ros, "controller_node", tid)
+        assert rec.wait(lambda: stops and not stops[-1][1].active, 20)
+        assert rec.wait(released, 30), ctl.log.read_text()[-1500:]
+        tick(1, position=(float("nan"), 0.0))                               # a stop of its own
+        assert rec.wait(lambda: "stop: no usable estimate" in ctl.log.read_text(), 20), ctl.log.read_text()[-1500:]
+        assert engaged()
+        cycles = [("controller_node", (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE)),
+                  ("controller_node", (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP,
+                                       Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE)),
+                  ("monitor_node", (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE))]
+        for target, tids in cycles:
+            for tid in tids:
+                assert transition(ros, target, tid), (target, tid)
+            assert state(ros, target) == State.PRIMARY_STATE_ACTIVE
+            if target == "monitor_node":            # its lifecycle stop latched and released again
+                assert rec.wait(lambda: not stops[-1][1].active and "lifecycle" in stops[-1][1].reason, 20)
+            assert engaged(), (target, ctl.log.read_text()[-1500:])
+        assert "the monitor released (monitor_node lifecycle: active: checking); the controller's own stop" \
+            in ctl.log.read_text()
+        # the audited reset (a PRIVILEGED line at the monitor) gives control back
+        res = call(ros, Trigger, "/monitor_node/reset", Trigger.Request())
+        assert res.success, res.message
+        assert rec.wait(lambda: stops[-1][1].reason.startswith(AUDITED_RESET), 20)
+        assert rec.wait(released, 30), ctl.log.read_text()[-1500:]
+        assert "PRIVILEGED safe-stop reset" in mon.log.read_text()
+    finally:
+        processes.stop([ctl, mon])
         rec.close()

@@ -13,7 +13,7 @@ from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, 
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from helpers import JOINTS, PUB_QOS, Recorder, plant_stream, wait_until, write_model
+from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, plant_stream, wait_until, write_model
 from reachset_ros import conformance as cf
 from reachset_ros import processes
 from reachset_ros.bags import read_messages
@@ -285,7 +285,8 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
     procs = [processes.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
              processes.start("reference_node", {"seed": 3}, tmp_path),
              processes.start("observer_node", common, tmp_path),
-             processes.start("controller_node", dict(common, wait_for_monitor=True), tmp_path)]
+             # the test's /safe_stop, no monitor: no verdicts (helpers.NO_VERDICTS)
+             processes.start("controller_node", dict(common, wait_for_monitor=True, **NO_VERDICTS), tmp_path)]
     recorder = processes.start("recorder_node", {"output": str(bag), "topics": [JOINT_STATES, BRAKE_TOPIC,
                                                                              SAFE_STOP_TOPIC]}, tmp_path)
     try:
@@ -359,7 +360,8 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     procs = [processes.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
              processes.start("reference_node", {"seed": 2}, tmp_path),
              processes.start("observer_node", common, tmp_path),
-             processes.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2), tmp_path)]
+             processes.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2, **NO_VERDICTS),
+                             tmp_path)]
     try:
         js = rec.msgs["joint_states"]
 
@@ -1038,7 +1040,7 @@ def test_a_reference_older_than_reference_max_age_is_a_stop_of_the_controllers_o
         node.on_reference(_ref_at(27))
         node.on_estimate(_est_at(27))          # a reference again: the stop stays latched
         assert node.own_stop is not None and brakes[-1] == [True, True]
-        node.on_safe_stop(SafeStop(active=False, kind="", reason="reset"))
+        node.on_safe_stop(SafeStop(active=False, kind="reset", reason="reset through ~/reset"))   # the audited reset
         assert node.own_stop is None and node.last_ref is None
         node.on_reference(_ref_at(28))
         node.on_estimate(_est_at(28))          # tracking again, on the new reference
