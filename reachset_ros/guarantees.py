@@ -38,6 +38,8 @@ ROWS = {
     "G9": "a margin that is not a number fails closed",
     "G10": "R_e and R_u are outer bounds in floating point",
     "G11": "the reference error is bounded for every reference the controller accepts",
+    "G13": "the monitor's verdicts keep up with the measurements",
+    "G14": "only the audited reset clears a stop",
 }
 
 
