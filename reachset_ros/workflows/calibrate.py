@@ -105,7 +105,7 @@ def _series(model, bags, topics, reader):
     return series
 
 
-def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None, margin=0,
+def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None, margin=0, floor=0.0,
                     topics=(JOINT_STATES, PLANT_INPUT), reader=None, fault_accel=5.0):
     """The model's inflation calibrated on its own sets (module docstring).
 
@@ -121,6 +121,10 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
         Inflations tried (default :data:`~reachset_ros.workflows.identify.DEFAULT_GRID`).
     margin : int
         Grid steps above the cross-validated inflation (``--calibrate-margin``).
+    floor : float
+        The model's inflation is at least this (e.g. the inflation the gains were synthesised
+        for): a larger inflation only grows the sets, so the folds that held at the calibrated
+        value still hold; the record keeps both (``calibrated_inflation``, ``floor``).
     topics, reader
         How the bags are read; u_p must be computed as the model's was
         (:func:`~reachset_ros.conformance.model.require_input_source`).
@@ -148,9 +152,9 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     calib = cross_validate(model.plant, model.estimator, series, horizon=model.horizon, k=folds, grid=g,
                            identify=fit, thm=model.theorem1(), runs=runs)
     calibrated = max(c["inflation"] for c in calib.values())
-    inflation = calibrate_margin(calibrated, g, margin) if margin else calibrated
+    inflation = max(calibrate_margin(calibrated, g, margin) if margin else calibrated, float(floor))
     out = mdl.with_calibration(replace(model, inflation=float(inflation)), method="cross_validation",
                                folds=int(folds), inflation_grid=list(g), calibrated_inflation=float(calibrated),
-                               margin_steps=int(margin), rule=rule,
+                               margin_steps=int(margin), floor=float(floor), rule=rule,
                                per_joint={n: float(c["inflation"]) for n, c in calib.items()})
     return CalibratedModel(model=out, calibrated=float(calibrated), joints=calib, rule=rule)

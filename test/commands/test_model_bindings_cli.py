@@ -124,3 +124,23 @@ def test_calibrate_model_calibrates_the_synthesis_sets_by_their_own_rule(two_bag
     assert held.model.calibration["method"] == "held_out_bags"
     assert held.model.calibration["sets_sha256"] == mdl.sets_digest(s)
     assert json.dumps(held.model.calibration)             # plain values: the YAML file takes it
+
+
+def test_synthesize_calibrate_records_the_inflation_of_its_own_sets(two_bags, calibrated, tmp_path, capsys):
+    """``synthesize --calibrate K`` writes the synthesised sets with the inflation calibrated on
+    them (the record binds them: check and replay take the model) and says whether R*_u was
+    synthesised for it."""
+    d, bags = two_bags
+    cfg = d / "synthesis.yaml"
+    out = tmp_path / "monitor.yaml"
+    res = run_json(["synthesize", *bags, "--horizon", HORIZON, "--config", cfg, "--reference-class", "qdd_max=2",
+                    "--inflation", 5.0, "--calibrate", 2, "--out", out], capsys)
+    cal = res["calibration"]
+    m = mdl.load(out)
+    assert cal["rule"] == "synthesis_min_re_norm" and cal["folds"] == 2 and cal["inflation"] == m.inflation
+    assert cal["certified"] is (m.inflation <= 5.0) and cal["synthesised_for_inflation"] == 5.0
+    assert m.calibration["sets_sha256"] == mdl.sets_digest(m) and m.calibration["method"] == "cross_validation"
+    assert m.inflation == max(cal["per_joint"].values())
+    assert run_json(["check", *bags, "--model", out], capsys)["conformant"]
+    code, so, se = run(["synthesize", *bags, "--calibrate", 1, "--reference-class", "qdd_max=2"], capsys)
+    assert_one_line_error(code, so, se, "synthesize", ["--calibrate needs K >= 2"])
