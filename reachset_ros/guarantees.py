@@ -40,6 +40,8 @@ ROWS = {
     "G11": "the reference error is bounded for every reference the controller accepts",
     "G13": "the monitor's verdicts keep up with the measurements",
     "G14": "only the audited reset clears a stop",
+    "G17": "u_p is computed online as it was for identification (source, URDF, parameters)",
+    "G18": "the inflation was calibrated on the sets the monitor checks",
 }
 
 

@@ -49,10 +49,12 @@ PUB_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 
 def write_model(path, alpha_w=ALPHA_W, alpha_v=ALPHA_V, joints=JOINTS, horizon=HORIZON):
     """A conformance model for the per-joint plant with the sets ``alpha_w``, ``alpha_v``
-    (zero centres, estimator ``fd``) for each of ``joints``, saved to ``path``; returns ``Path(path)``."""
+    (zero centres, estimator ``fd``, u_p from the plant-input topic) for each of ``joints``,
+    saved to ``path``; returns ``Path(path)``."""
     p = lwa4p_joint_plant()
     js = {j: mdl.JointSets(tuple(alpha_w), tuple(alpha_v), (0.0,) * 5, (0.0,), 0, horizon) for j in joints}
-    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), path)
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js,
+                                  input_source=mdl.PLANT_INPUT), path)
     return Path(path)
 
 

@@ -54,13 +54,15 @@ def _fleet(args, model, thm, fleet):
 
 def run(args):
     model = mdl.load(args.model)
+    options = reader_options(args)
+    mdl.require_input_source(model, options["effort"], source=args.model)   # u_p as the model's (34.10)
     fleet = fleet_of(args)
     thm = model.theorem1()
     if fleet is not None:
         joints, report, devs = _fleet(args, model, thm, fleet)
     else:
         series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                     topics=topics_of(args), options=reader_options(args))
+                                     topics=topics_of(args), options=options)
         require_horizon(series, model.estimator.history, model.horizon, args.bags)
         joints = {}
         for name, s in series.items():

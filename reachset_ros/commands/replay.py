@@ -90,8 +90,10 @@ def replay_joints(model, series, thm=None):
 
 def run(args):
     model = mdl.load(args.model)
+    options = reader_options(args)
+    mdl.require_input_source(model, options["effort"], source=args.model)   # u_p as the model's (34.10)
     series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                 topics=topics_of(args), options=reader_options(args))
+                                 topics=topics_of(args), options=options)
     require_horizon(series, model.estimator.history, model.horizon, args.bags)
     thm = model.theorem1()
     missing = [n for n in series if n not in model.joints]

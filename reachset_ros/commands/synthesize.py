@@ -96,6 +96,11 @@ def add_arguments(p):
     p.add_argument("--inflation", type=float, default=None, metavar="F",
                    help="the monitor will check the sets scaled by 1 + F: R*_u inside U_p is enforced and R*_e "
                         "reported for those sets, and the model records F (default 0; reidentify: the model's)")
+    p.add_argument("--calibrate", type=int, default=None, metavar="K",
+                   help="calibrate the model's inflation on the synthesised sets (the ones the monitor checks) by "
+                        "K-fold cross-validation of the bags, with the rule that made them (min ||R*_e|| of the "
+                        "gains per fold), and record it; an inflation calibrated by identify is for identify's "
+                        "sets (docs/theory.md). Synthesise with --inflation at least the result for R*_u to cover it")
 
 
 def _kv(items, what):
@@ -189,6 +194,8 @@ def check_args(args):
         raise ReachsetError("--mode reidentify needs --model (the model whose gains are kept)")
     if args.mode != "reidentify" and args.model:
         raise ReachsetError("--model is only used with --mode reidentify")
+    if args.calibrate is not None and args.calibrate < 2:
+        raise ReachsetError(f"--calibrate needs K >= 2 folds, got {args.calibrate}")
 
 
 def compute(args, command=None):
@@ -201,13 +208,15 @@ def compute(args, command=None):
     out = check_out_path(args.out)
     free = None if args.free is None else [x.strip() for x in args.free.split(",") if x.strip()]
     joints = None if args.joints in (None, "all") else parse_joints(args.joints)
-    fleet = fleet_of(args, refused=((args.plot is not None, "--plot"),))
+    fleet = fleet_of(args, refused=((args.plot is not None, "--plot"), (args.calibrate is not None, "--calibrate")))
     if fleet is None:
         opts, read = options_of(args, joints, free, reader=reader_options(args)), None
     else:                      # the sweep per bag on Dask, merged exactly (the same result, to the bit)
-        opts, read = options_of(args, joints, free), read_spec(args, None, args.dt)
+        # the reader's effort source is only recorded (the model's input_source), the workers read
+        opts, read = options_of(args, joints, free, reader=reader_options(args)), read_spec(args, None, args.dt)
     command = command or "reachset " + " ".join(sys.argv[1:])
-    res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read)
+    res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read,
+                     calibrate=args.calibrate)
     result = res.to_json()
     result["seconds"] = round(time.perf_counter() - t0, 3)
     return res, result
@@ -218,4 +227,9 @@ def run(args):
     bs = res.synthesis
     weak = (f"\nWEAK GUARANTEE: horizon {bs.horizon} is below the plant's minimum {bs.minimum_horizon} "
             "(--allow-weak-horizon)") if bs.horizon_below_minimum else ""
-    emit(args, result, _human(bs.results) + weak + (f"\nmodel written to {res.model}" if res.model else ""))
+    cal = res.calibration
+    cal = "" if cal is None else (f"\ninflation calibrated on these sets ({cal['folds']} folds): {cal['inflation']:g}"
+                                  + ("" if cal["certified"] else f"; NOT CERTIFIED: R*_u was synthesised for inflation "
+                                     f"{cal['synthesised_for_inflation']:g} (synthesize again with --inflation "
+                                     f"{cal['inflation']:g})"))
+    emit(args, result, _human(bs.results) + weak + cal + (f"\nmodel written to {res.model}" if res.model else ""))

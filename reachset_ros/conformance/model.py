@@ -9,11 +9,27 @@ SHA-256), and the horizon rule's outcome (``minimum_horizon`` of the plant, and
 see :func:`~reachset_ros.conformance.kernels.require_minimum_horizon`; a reader refuses a
 model below the minimum that does not record the flag, :func:`require_model_horizon`). ``reachset identify`` and ``reachset synthesize`` write it; ``check``,
 ``replay`` and the monitor node read it.
+
+Two bindings (issue 34.10/11), checked by the readers:
+
+* ``input_source``: how u_p was computed for the data the sets were identified from
+  (``{kind: plant_input}``: the plant-input topic; ``{kind: effort, urdf_sha256,
+  params_sha256, locked_joints, joints, torque_scale}``: from the measured effort with a URDF,
+  :meth:`reachset_ros.robot.effort.EffortInput.binding`). ``check``, ``replay`` and the
+  monitor refuse data whose u_p comes from another source (:func:`require_input_source`), and
+  a model that records none (written before the binding existed): re-identify it, or, when its
+  data's u_p came from the plant-input topic, add ``input_source: {kind: plant_input}``.
+* ``calibration``: when the inflation was calibrated (``identify --calibrate``/``--validate``,
+  :func:`reachset_ros.workflows.calibrate.calibrate_model`), the digest of the sets it was
+  calibrated on (:func:`sets_digest`) and the inflation; every reader refuses a model whose
+  sets or inflation are not the record's (:func:`require_calibrated_sets`). No record: the
+  inflation was given (``--inflation``), not calibrated.
 """
 from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -69,6 +85,8 @@ class ConformanceModel:
     minimum_horizon: int = None          # the plant's minimum k* (None: not recorded, older file)
     horizon_below_minimum: bool = False  # k* accepted below the minimum (a weaker guarantee)
     initial_state_set: bool = False      # Theorem 1 with the estimator's error set (theorem1.Theorem1.build)
+    input_source: dict = None            # how u_p was computed (input_source_of); None: not recorded (older file)
+    calibration: dict = None             # the inflation's calibration record (calibration_record); None: given
 
     def theorem1(self):
         """The Theorem-1 rows this model's sets were identified for and are checked with
@@ -160,6 +178,8 @@ def to_dict(model: ConformanceModel) -> dict:
         **({"minimum_horizon": int(model.minimum_horizon)} if model.minimum_horizon is not None else {}),
         **({"horizon_below_minimum": True} if model.horizon_below_minimum else {}),
         **({"initial_state_set": True} if model.initial_state_set else {}),
+        **({"input_source": dict(model.input_source)} if model.input_source is not None else {}),
+        **({"calibration": dict(model.calibration)} if model.calibration is not None else {}),
     }
 
 
@@ -217,9 +237,13 @@ def from_dict(d, source="model") -> ConformanceModel:
             initial_error_maps(plant, est)
         except ReachsetError as e:
             raise ReachsetError(f"{source}: {e}") from None
-    return ConformanceModel(plant=plant, plant_spec=dict(d["plant"]), estimator=est, horizon=horizon, joints=joints,
-                            inflation=inflation, provenance=d.get("provenance", {}) or {}, minimum_horizon=k_min,
-                            horizon_below_minimum=below, initial_state_set=iss)
+    m = ConformanceModel(plant=plant, plant_spec=dict(d["plant"]), estimator=est, horizon=horizon, joints=joints,
+                         inflation=inflation, provenance=d.get("provenance", {}) or {}, minimum_horizon=k_min,
+                         horizon_below_minimum=below, initial_state_set=iss,
+                         input_source=_input_source(d.get("input_source"), source),
+                         calibration=_calibration(d.get("calibration"), source))
+    require_calibrated_sets(m, source=source)
+    return m
 
 
 def require_model_horizon(plant, horizon, joints, *, recorded, below, source):
@@ -254,6 +278,137 @@ def require_model_horizon(plant, horizon, joints, *, recorded, below, source):
                                        f"{k_min} or more (a model identified with --allow-weak-horizon records "
                                        "horizon_below_minimum: true)")
     return k_min
+
+
+# ------------------------------------------------------------------ how u_p was computed (34.10)
+#: ``input_source`` of data whose u_p is the plant-input topic (``--input topic``, the default)
+PLANT_INPUT = {"kind": "plant_input"}
+_EFFORT_KEYS = ("urdf_sha256", "params_sha256", "locked_joints", "joints", "torque_scale")
+
+
+def input_source_of(effort=None):
+    """The ``input_source`` block of data read with ``effort`` (an
+    :class:`~reachset_ros.robot.effort.EffortInput` for ``--input effort`` / the monitor's
+    ``input_source: effort``; None: the plant-input topic)."""
+    return dict(PLANT_INPUT) if effort is None else effort.binding()
+
+
+def _input_source(v, source):
+    if v is None:
+        return None
+    if not isinstance(v, dict) or v.get("kind") not in ("plant_input", "effort"):
+        raise ReachsetError(f"{source}: input_source must be a mapping with kind plant_input or effort, got {v!r}")
+    if v["kind"] == "effort":
+        missing = [k for k in _EFFORT_KEYS if k not in v]
+        if missing:
+            raise ReachsetError(f"{source}: input_source of kind effort has no {missing[0]}")
+    return dict(v)
+
+
+def _describe_source(b):
+    if b["kind"] == "plant_input":
+        return "the plant-input topic"
+    params = "no parameter document" if b.get("params_sha256") is None else f"parameters {b['params_sha256'][:12]}"
+    return f"effort with URDF {b['urdf_sha256'][:12]}, {params}"
+
+
+def require_input_source(model: ConformanceModel, effort=None, *, source):
+    """Refuse to check data whose u_p is not computed the way the model's data's was (issue 34.10).
+
+    The sets W, V bound the model error of the plant input u_p as it was computed when they
+    were identified (paper eq. 6 inverted with the nominal M, psi when it comes from the
+    effort): u_p computed another way (the topic instead of the effort, another URDF, other
+    identified parameters, other locked joints or torque scale) is another signal, and a
+    verdict on it says nothing about the model. ``check``, ``replay`` and the monitor call this
+    with the source they read u_p from (``effort``: :class:`~reachset_ros.robot.effort.EffortInput`
+    or None for the plant-input topic).
+
+    A model that records no ``input_source`` (written before the binding existed) is refused
+    too: which source it was identified from is unknown (module docstring: how to bind it).
+
+    Raises
+    ------
+    ReachsetError
+        One line naming the model, both sources and the first field that differs.
+    """
+    have = input_source_of(effort)
+    rec = model.input_source
+    if rec is None:
+        raise guarantees.refused("G17", f"{source}: the model records no input_source (how u_p was computed when it was "
+                            f"identified; written before issue 34.10): re-identify it, or, if its data's u_p came "
+                            f"from the plant-input topic, add the line 'input_source: {{kind: plant_input}}'")
+    if rec["kind"] != have["kind"]:
+        raise guarantees.refused("G17", f"{source}: the model was identified with u_p from {_describe_source(rec)}, but this u_p "
+                            f"comes from {_describe_source(have)} (--input / the monitor's input_source)")
+    for k in _EFFORT_KEYS if rec["kind"] == "effort" else ():
+        a, b = rec.get(k), have.get(k)
+        if k == "locked_joints":
+            a, b = sorted(a or ()), sorted(b or ())
+        if k == "torque_scale":
+            a, b = [float(x) for x in a], [float(x) for x in b]
+        if a != b:
+            raise guarantees.refused("G17", f"{source}: the model's u_p was computed from effort with {k} {a}, this u_p with "
+                                f"{b} (--robot, --nominal, --lock-joints / the monitor's robot_* parameters)")
+    return rec
+
+
+# ------------------------------------------------------------------ the sets the inflation was calibrated on (34.11)
+def sets_digest(model: ConformanceModel):
+    """SHA-256 of what the monitor checks besides the inflation: the plant, the estimator, the
+    horizon, the Theorem-1 variant and every joint's sets (c_W, c_V, alpha_W, alpha_V, k*).
+    Floats enter as their shortest round-trip text, so the digest survives the YAML file."""
+    canon = {"plant": model.plant_spec, "estimator": model.estimator.as_dict(), "horizon": int(model.horizon),
+             "initial_state_set": bool(model.initial_state_set),
+             "joints": {n: [_fl(j.alpha_w), _fl(j.alpha_v), _fl(j.c_w), _fl(j.c_v), int(j.horizon)]
+                        for n, j in sorted(model.joints.items())}}
+    text = json.dumps(canon, sort_keys=True, default=lambda x: x.tolist() if hasattr(x, "tolist") else repr(x))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def calibration_record(model: ConformanceModel, *, method, **details):
+    """The model's ``calibration`` block: ``method`` (``cross_validation`` or
+    ``held_out_bags``), the model's inflation and the digest of the sets it was calibrated
+    for (:func:`sets_digest` of ``model``, which must already hold its final sets and
+    inflation), and ``details`` (folds, grid, per joint values, the rule that made the fold
+    sets)."""
+    return {"method": str(method), "inflation": float(model.inflation), "sets_sha256": sets_digest(model),
+            **details}
+
+
+def with_calibration(model: ConformanceModel, *, method, **details):
+    """``model`` with its :func:`calibration_record`."""
+    return replace(model, calibration=calibration_record(model, method=method, **details))
+
+
+def _calibration(v, source):
+    if v is None:
+        return None
+    if not isinstance(v, dict) or not isinstance(v.get("sets_sha256"), str) or "inflation" not in v:
+        raise ReachsetError(f"{source}: calibration must be a mapping with sets_sha256 and inflation")
+    _floats(v["inflation"], "calibration inflation", 1)
+    return dict(v)
+
+
+def require_calibrated_sets(model: ConformanceModel, *, source):
+    """Refuse a model whose calibration record is not for its own sets and inflation (34.11).
+
+    The inflation is an empirical calibration of *these* sets' held-out violations
+    (:mod:`reachset_ros.conformance.calibration`): the same number on other sets (the
+    synthesis optimum instead of identify's min ||W||+||V|| sets, another horizon or
+    estimator) or another number on these sets was never checked. Every reader of a model
+    runs this (:func:`from_dict`). A model without a record has a given, uncalibrated inflation.
+    """
+    rec = model.calibration
+    if rec is None:
+        return
+    if rec["sets_sha256"] != sets_digest(model):
+        raise guarantees.refused("G18", f"{source}: its inflation was calibrated on other sets than the ones it holds "
+                            f"(calibration sets_sha256 {rec['sets_sha256'][:12]}, the model's sets "
+                            f"{sets_digest(model)[:12]}); calibrate these sets (identify --calibrate, or "
+                            "workflows.calibrate.calibrate_model for a synthesis) or drop the calibration record")
+    if float(rec["inflation"]) != float(model.inflation):
+        raise guarantees.refused("G18", f"{source}: inflation {model.inflation:g} is not the calibrated {float(rec['inflation']):g} "
+                            "of its calibration record")
 
 
 def load(path) -> ConformanceModel:

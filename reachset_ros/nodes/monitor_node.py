@@ -181,6 +181,7 @@ class MonitorNode(Node):
 
         try:
             model = mdl.load(path)
+            mdl.require_input_source(model, self.effort, source=path)    # u_p as the model's (issue 34.10)
             joints = joints if joints is not None else [j for j in self.get_parameter("joints").value if j]
             core = MonitorCore(model, joints or None, param("max_missing_ticks"), self.effort,
                                param("stuck_ticks"), param("stuck_speed"), param("gap_window"))

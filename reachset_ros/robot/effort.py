@@ -22,6 +22,7 @@ Choices (documented in docs/any-arm.md):
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +32,17 @@ from ..errors import ReachsetError
 from .descriptions import resolve_urdf
 from .dynamics import RobotModel, create_data, inverse_fl, load_model
 
-__all__ = ["EffortInput", "plant_inputs", "load_effort_input"]
+__all__ = ["EffortInput", "plant_inputs", "load_effort_input", "file_digest"]
+
+
+def file_digest(path) -> str:
+    """SHA-256 (hex) of a file's bytes: what the model's ``input_source`` binds a URDF and a
+    parameter document by (their contents, not their paths)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def plant_inputs(model: RobotModel, Q, QD, TAU, data=None) -> np.ndarray:
@@ -95,6 +106,18 @@ class EffortInput:
     def plant_inputs(self, Q, QD, TAU, data=None) -> np.ndarray:
         """:func:`plant_inputs` with this source's model."""
         return plant_inputs(self.model, Q, QD, TAU, data)
+
+    def binding(self) -> dict:
+        """The model file's ``input_source`` block of this source (issue 34.10): how u_p is
+        computed, as values a reader compares: ``{"kind": "effort", "urdf_sha256",
+        "params_sha256" (None without ``--nominal``), "locked_joints", "joints",
+        "torque_scale"}`` (the torque scale per joint, ``tau = torque_scale * effort``).
+        :func:`reachset_ros.conformance.model.require_input_source` refuses a model identified
+        with another binding."""
+        return {"kind": "effort", "urdf_sha256": file_digest(self.urdf),
+                "params_sha256": None if self.nominal is None else file_digest(self.nominal),
+                "locked_joints": sorted(self.locked), "joints": list(self.joint_names),
+                "torque_scale": [float(x) for x in self.model.torque_scale]}
 
     def describe(self) -> dict:
         """Provenance: ``{"source": "effort", "robot": urdf, "nominal": params or None, "joints": [...]}``."""

@@ -131,6 +131,7 @@ class BagSynthesis:
     inflation: float = 0.0              # the model's inflation: R*_e, R*_u are for the inflated sets
     initial_state_set: bool = False     # Theorem 1 with the estimator's initial-state set (Theorem1.build)
     sha256: tuple = None                # the bags' hashes when a fleet's workers computed them
+    input_source: dict = None           # how the bags' u_p was computed (conformance.model.input_source_of)
 
     def as_dict(self):
         d = {"mode": self.mode, "joints": {n: r.as_dict() for n, r in self.results.items()},
@@ -157,7 +158,8 @@ class BagSynthesis:
                                     provenance=mdl.provenance(self.bags, command, self.sha256),
                                     minimum_horizon=self.minimum_horizon,
                                     horizon_below_minimum=self.horizon_below_minimum,
-                                    initial_state_set=bool(self.initial_state_set))
+                                    initial_state_set=bool(self.initial_state_set),
+                                    input_source=self.input_source)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -290,6 +292,7 @@ def plan(bags, options: SynthesisOptions):
         if not o.model:
             raise ReachsetError("mode reidentify needs a model file whose gains are kept")
         base = mdl.load(o.model)
+        mdl.require_input_source(base, (o.reader or {}).get("effort"), source=o.model)
         plant, plant_spec = base.plant, base.plant_spec
         horizon = base.horizon if o.horizon is None else int(o.horizon)
         est = base.estimator if o.estimator is None else Estimator.named(o.estimator, base.plant)
@@ -421,7 +424,8 @@ def solve(pl: SynthesisPlan, data: BagData):
                         mode=o.mode, seed=seed, reference_method=int(o.reference_method), bags=pl.bags,
                         minimum_horizon=pl.minimum_horizon, horizon_below_minimum=pl.horizon_below_minimum,
                         reference_class=o.reference_class, inflation=pl.inflation,
-                        initial_state_set=pl.initial_state_set, sha256=data.sha256)
+                        initial_state_set=pl.initial_state_set, sha256=data.sha256,
+                        input_source=mdl.input_source_of((o.reader or {}).get("effort")))
 
 
 def synthesize_bags(bags, options: SynthesisOptions = None, **kw):

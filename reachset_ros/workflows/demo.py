@@ -26,6 +26,7 @@ from ..robot.lwa4p import default_nominal_path
 from ..synthesis.config import config_path, load_config
 from ..systems.gains import certified_inflation
 from .commander import CORE_TOPICS, JOINTS, LOCKSTEP_TIMEOUT, MONITOR_TOPICS, open_commander, wall_limit
+from .calibrate import calibrate_model
 from .identify import IdentifyOptions, identify
 from .worker import run_in_worker
 
@@ -75,8 +76,9 @@ def run_demo(*, workdir: Path, record: Path, duration: float, fault_at: float | 
         # applied one. Identification data start after it has settled.
         commander.wait_for_monitor(120.0)
         story.timed("start-up", settle)
+        calibrate = inflation is None
         res, inflation = story.train_and_synthesize(train=train, initial=initial, inflation=inflation)
-        story.apply_monitor_model(res, inflation=inflation)
+        story.apply_monitor_model(res, inflation=inflation, calibrate=calibrate)
         story.monitored_run(record=record, duration=duration, fault_at=fault_at, fault=fault)
         return story.out
 
@@ -149,6 +151,7 @@ class _Story:
         log(f"[demo] synthesised and applied: {res.message}")
         # 3. run with the new gains, re-identify the sets (paper Sec. III-D, iteration 2)
         bag2 = workdir / "train_new_gains"
+        self.training_bags = [bag1, bag2]
         self.train(recording="new gains", phase="new gains", seconds=train, path=bag2)
         if inflation is None:
             inflation, out["inflation_calibration"] = calibrate_inflation(bags=[bag1, bag2], workdir=workdir)
@@ -170,21 +173,36 @@ class _Story:
         self.timed("settle", self.settle)
         return res, inflation
 
-    def apply_monitor_model(self, res, *, inflation):
+    def apply_monitor_model(self, res, *, inflation, calibrate=False):
         """The monitor gets the synthesised model, whose gains were synthesised and certified for
         the demo's inflation of the sets (synthesize --inflation): R*_u inside U_p holds for the
-        sets it checks. The certificate is checked again here (systems.gains.certify); if it
-        did not cover the inflation the demo says so (NOT CERTIFIED) and records it."""
+        sets it checks. ``calibrate``: that inflation was calibrated on identify's sets, so it is
+        calibrated again on the synthesised sets the monitor checks (issue 34.11,
+        :func:`reachset_ros.workflows.calibrate.calibrate_model`, 2 folds of the training
+        recordings; the model records it); the monitor's inflation is the larger of the two. The certificate is checked again here
+        (systems.gains.certify); if it did not cover the inflation the demo says so (NOT
+        CERTIFIED) and records it."""
         out, workdir = self.out, self.workdir
         monitor_model = workdir / "monitor_model.yaml"
         synthesized = mdl.load(res.result.model_file)
+        monitor = replace(synthesized, inflation=float(inflation), calibration=None)    # a given inflation
+        if calibrate:
+            # at least the inflation the gains were synthesised for (a larger one only grows the sets)
+            cm = run_in_worker(calibrate_model, synthesized, bags=[str(b) for b in self.training_bags], folds=2,
+                               floor=float(inflation))
+            monitor, inflation = cm.model, cm.model.inflation
+            self.log(f"[demo] inflation calibrated again on the synthesised sets the monitor checks: "
+                     f"{cm.calibrated:g}; the monitor's {inflation:g}")
+            out.setdefault("inflation_calibration", {})["monitor_sets"] = {
+                "calibrated": cm.calibrated, "inflation": float(inflation),
+                "per_joint": cm.model.calibration["per_joint"], "rule": cm.rule["sets"]}
         used, per_joint = certified_inflation(synthesized, float(inflation))
         if used < float(inflation):
             self.log(f"[demo] NOT CERTIFIED: the monitor's inflation {inflation:g} is beyond the R*_u certificate "
                      f"of the synthesised gains (largest certified per joint: "
                      + ", ".join(f"{j} {v:.4g}" for j, v in per_joint.items())
                      + "); the monitor's sets are a detection threshold here, not a guarantee")
-        mdl.save(replace(synthesized, inflation=float(inflation)), monitor_model)
+        mdl.save(monitor, monitor_model)
         self.cmd.apply_model(monitor_model)
         out["monitor_model"] = str(monitor_model)
         out["inflation_requested"] = float(inflation)

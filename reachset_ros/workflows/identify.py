@@ -360,6 +360,22 @@ def _provenance(o: IdentifyOptions, *, data, grid, calib, inflation):
     return prov
 
 
+def _with_calibration(m, o: IdentifyOptions, *, grid, calib, calibrated):
+    """``m`` with the record of the sets its inflation was calibrated on (issue 34.11,
+    :func:`reachset_ros.conformance.model.with_calibration`): ``--calibrate`` (the fold sets
+    identified as these were, by ``rule``) or ``--validate`` (these very sets checked on
+    held-out bags); unchanged when the inflation was given."""
+    rule = {"sets": "identify", "cost": o.cost, "centers": o.centers}
+    if calib is not None:
+        return mdl.with_calibration(m, method="cross_validation", folds=int(o.calibrate), inflation_grid=list(grid),
+                                    calibrated_inflation=float(calibrated), margin_steps=int(o.calibrate_margin),
+                                    per_joint={n: float(c["inflation"]) for n, c in calib.items()}, rule=rule)
+    if o.validate:
+        return mdl.with_calibration(m, method="held_out_bags", inflation_grid=list(grid),
+                                    bags=[str(b) for b in o.validate], rule=rule)
+    return m
+
+
 def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
     """Identify a reachset-conformant model from bags (``reachset identify``).
 
@@ -417,8 +433,9 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
         m = mdl.ConformanceModel(plant=plant, plant_spec={"kind": "lwa4p_joint", "dt": o.dt}, estimator=est,
                                  horizon=o.horizon, joints=joints, inflation=inflation, provenance=prov,
                                  minimum_horizon=k_min, horizon_below_minimum=weak,
-                                 initial_state_set=bool(o.initial_state_set))
-        mdl.save(m, o.out)
+                                 initial_state_set=bool(o.initial_state_set),
+                                 input_source=mdl.input_source_of((o.reader or {}).get("effort")))
+        mdl.save(_with_calibration(m, o, grid=grid, calib=calib, calibrated=calibrated), o.out)
         model = str(o.out)
     return IdentifyResult(inflation=inflation, joints=js, model_sets=joints, data=data.report.as_dict(), cost=o.cost,
                           method=o.method, horizon=o.horizon, minimum_horizon=k_min, horizon_below_minimum=weak,

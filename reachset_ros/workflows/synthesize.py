@@ -17,7 +17,10 @@ from dataclasses import dataclass, replace
 from .. import fleet as fl
 from ..bags import read_estimates
 from ..conformance import model as mdl
+from ..bags.messages import JOINT_STATES, PLANT_INPUT
 from ..synthesis.pipeline import BagData, BagSynthesis, SynthesisOptions, plan, read_bags, solve
+
+_TOPICS = (JOINT_STATES, PLANT_INPUT)
 
 __all__ = ["SynthesisOptions", "SynthesisResult", "synthesize", "sweep_on_fleet"]
 
@@ -39,12 +42,15 @@ class SynthesisResult:
     synthesis: BagSynthesis
     model: str | None = None
     plots: list | None = None
+    calibration: dict | None = None
 
     def to_json(self):
         """The ``reachset synthesize --json`` object, without ``seconds``."""
         out = self.synthesis.as_dict()
         if self.plots is not None:
             out["plots"] = list(self.plots)
+        if self.calibration is not None:
+            out["calibration"] = self.calibration
         if self.model is not None:
             out["model"] = self.model
         return out
@@ -62,7 +68,22 @@ def sweep_on_fleet(pl, *, fleet, fleet_read):
                    checker=fl.Checker(fleet, pl.bags, read, sweep))
 
 
-def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command="", fleet=None, fleet_read=None):
+def calibrated_model(bs: BagSynthesis, model, *, folds, topics=None, reader=None):
+    """``model`` (the synthesis' own) with its inflation calibrated on its sets by ``folds``-fold
+    cross-validation of the bags, read as the synthesis read them (``topics``, ``reader``)
+    (issue 34.11, :func:`reachset_ros.workflows.calibrate.calibrate_model`), and the ``--json``
+    ``calibration`` object; ``certified`` says whether the gains' R*_u certificate (for the
+    synthesis' ``inflation``) covers the calibrated inflation."""
+    from .calibrate import calibrate_model
+    cm = calibrate_model(model, bags=list(bs.bags), folds=folds, topics=topics or _TOPICS, reader=reader)
+    info = {"inflation": cm.model.inflation, "folds": int(folds), "rule": cm.rule["sets"],
+            "per_joint": cm.model.calibration["per_joint"], "synthesised_for_inflation": float(bs.inflation),
+            "certified": bool(cm.model.inflation <= bs.inflation)}
+    return cm.model, info
+
+
+def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command="", fleet=None, fleet_read=None,
+               calibrate=None):
     """Synthesise (or re-identify) from ``bags`` (``reachset synthesize``).
 
     Parameters
@@ -80,6 +101,9 @@ def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command=
         A fleet (not yet entered): the sweep runs one task per bag on it, read as
         ``fleet_read`` (:class:`~reachset_ros.fleet.ReadSpec`; its joints and dt are set
         here) says; the result is the single-process one to the bit (provenance aside).
+    calibrate : int, optional
+        K: the model's inflation is calibrated on the synthesised sets by K-fold
+        cross-validation of the bags (:func:`calibrated_model`; issue 34.11), and recorded.
 
     Returns
     -------
@@ -98,8 +122,12 @@ def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command=
         est_rows = read_estimates(list(bs.bags), list(bs.results))
         for pb in bs.problems:
             plots += [str(p) for p in pp.plot_joint(plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
-    model = None
+    model, calibration = None, None
+    written = bs.model(command)
+    if calibrate is not None:
+        written, calibration = calibrated_model(bs, written, folds=calibrate, topics=options.topics,
+                                                reader=options.reader)
     if out is not None:
-        mdl.save(bs.model(command), out)
+        mdl.save(written, out)
         model = str(out)
-    return SynthesisResult(synthesis=bs, model=model, plots=plots)
+    return SynthesisResult(synthesis=bs, model=model, plots=plots, calibration=calibration)

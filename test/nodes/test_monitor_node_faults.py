@@ -10,6 +10,7 @@ import time
 
 import pytest
 import rclpy
+import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 from reachset_msgs.msg import JointReference, SafeStop
 
@@ -402,4 +403,29 @@ class TestMonitorNode:
                    for s in bus.statuses(ts))
         ok, why = bus.set_params("monitor_node", {"model_file": str(path), "joints": [""]})
         assert ok, why
+        self.alive_and_checking(bus, proc)
+
+    def test_a_model_bound_to_another_u_p_or_other_sets_is_refused(self, bus, mon, tmp_path):
+        """Issue 34.10/11 on the monitor (input_source plant_input): a model identified from
+        effort, one that records no input_source, and one whose calibration names other sets
+        are refused, naming why; the running model stays. Before, all three were loaded."""
+        proc, path, _ = mon
+        doc = yaml.safe_load(path.read_text())
+        cases = []
+        for name, edit, words in (
+                ("effort", lambda d: d.update(input_source={"kind": "effort", "urdf_sha256": "0" * 64,
+                                                            "params_sha256": None, "locked_joints": [],
+                                                            "joints": JOINTS, "torque_scale": [1.0, 1.0]}),
+                 "identified with u_p from effort"),
+                ("unbound", lambda d: d.pop("input_source"), "records no input_source"),
+                ("other_sets", lambda d: d.update(calibration={"sets_sha256": "0" * 64, "inflation": 0.0}),
+                 "calibrated on other sets")):
+            d = yaml.safe_load(yaml.safe_dump(doc))
+            edit(d)
+            (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(d))
+            cases.append((tmp_path / f"{name}.yaml", words))
+        for f, words in cases:
+            ok, why = bus.set_params("monitor_node", {"model_file": str(f)})
+            assert not ok and words in why, (f, why)
+        assert bus.get_param("monitor_node", "model_file") == str(path)
         self.alive_and_checking(bus, proc)

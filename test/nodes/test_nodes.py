@@ -453,7 +453,8 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     # about 3x the sets identified on 15 s of this closed loop (alpha_w <= 1.9, alpha_v <= 3.6e-4)
     js = {j: mdl.JointSets((6.0, 0.0), (1e-3,), (0.0,) * 5, (0.0,), 0, horizon) for j in ALL_JOINTS}
     model = tmp_path / "model.yaml"
-    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js), model)
+    mdl.save(mdl.ConformanceModel(p, {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), horizon, js,
+                                  input_source=mdl.PLANT_INPUT), model)
     bag = tmp_path / "run"
     rec = Recorder("bagcheck_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop,
                                          "sim/fault_onset": Header})

@@ -152,6 +152,25 @@ def test_effort_route_check_and_replay_agree(lwa_bags, tmp_path):
         assert j["violations"] == r["joints"][n]["violations"] == 0
 
 
+@pytest.mark.parametrize("cmd", ["check", "replay"])
+def test_a_model_identified_from_effort_refuses_u_p_computed_otherwise(cmd, lwa_bags, tmp_path):
+    """Issue 34.10: the model records how u_p was computed (from effort with this URDF and
+    these parameters); check and replay refuse u_p from the plant-input topic (the imported
+    bag), or from effort without the parameters, with one line naming the difference. Before,
+    both ran and gave verdicts on a signal the sets do not describe."""
+    d, _, _ = lwa_bags
+    eff = ["--input", "effort", "--robot", DEFAULT_URDF, "--nominal", NOMINAL]
+    m = tmp_path / "m.yaml"
+    cli("identify", d / "plain", "--horizon", 10, "--out", m, *eff)
+    src = yaml.safe_load(m.read_text())["input_source"]
+    assert src == load_effort_input(DEFAULT_URDF, NOMINAL).binding() and src["kind"] == "effort"
+    line = cli(cmd, d / "imported", "--model", m, code=2)
+    assert str(m) in line and "identified with u_p from effort" in line and "plant-input topic" in line
+    line = cli(cmd, d / "plain", "--model", m, "--input", "effort", "--robot", DEFAULT_URDF, code=2)
+    assert "params_sha256" in line
+    cli(cmd, d / "plain", "--model", m, "--json", *eff)
+
+
 def test_effort_route_errors(lwa_bags, tmp_path):
     d, _, _ = lwa_bags
     assert "--input effort needs --robot" in cli("identify", d / "plain", "--input", "effort", code=2)

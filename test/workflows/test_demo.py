@@ -55,8 +55,12 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     # the gains were synthesised for the inflation the monitor checks: R*_u inside U_p holds for
     # the monitored sets; the inflation is calibrated on the training recordings (issue 16.3;
     # before: a constant 1.0)
+    # and calibrated again on the synthesised sets the monitor checks (issue 34.11), recorded in its model
     cal = res["inflation_calibration"]
-    assert cal["folds"] == 2 and res["inflation"] == max(cal["per_joint"].values()), cal
+    ms = cal["monitor_sets"]
+    assert cal["folds"] == 2 and ms["calibrated"] == max(ms["per_joint"].values()), cal
+    assert res["inflation"] == ms["inflation"] == max(ms["calibrated"], max(cal["per_joint"].values())), cal
+    assert ms["rule"] == "synthesis_min_re_norm", cal
     assert res["inflation_is_certified"] is True, res["inflation_certified"]
     assert all(v >= res["inflation"] for v in res["inflation_certified"].values()), res["inflation_certified"]
     # the guarantee (issue 16.3): omega strictly inside its search box on every joint, every
