@@ -158,7 +158,9 @@ class Bus:
                    if not i.node_name.startswith("monitor"))
 
     def active_stops(self):
-        return [s for s in list(self.stops) if s.active]
+        """The active stops a check or fault latched: the monitor's start-up stop (``kind:
+        not_ready``, issue 34.1, which it releases itself) is left out."""
+        return [s for s in list(self.stops) if s.active and s.kind != "not_ready"]
 
     def distinct_active_stops(self):
         """The active stops without the monitor's repeats (same stamp, kind, joint, reason)."""
@@ -227,6 +229,7 @@ class Bus:
         releases its start-up stop (issue 34.1: k* + 1 consecutive ticks checked to the
         horizon, all conformant); returns the releasing message."""
         from reachset_ros.nodes.common import MONITOR_STARTED
+        assert self.wait(lambda: self.js.get_subscription_count() and self.pi.get_subscription_count(), timeout)
         assert self.wait(lambda: any(s.kind == "not_ready" for s in list(self.stops)), timeout), \
             "no start-up stop (kind not_ready) from the monitor"
         n = 2 * (HISTORY + HORIZON + 1)
