@@ -26,8 +26,9 @@ reason :data:`~reachset_ros.nodes.common.MONITOR_STARTED`) only after k* + 1 con
 checked to the horizon, all conformant, on every input (a tick needs both ``/joint_states``
 and ``/plant_input``; ``/joint_states`` alone with ``input_source: effort``): an input that
 never arrives (a remap error) keeps the arm stopped, and ``/diagnostics`` names it. The
-controller holds the arm at rest meanwhile (u_p = 0), which the model predicts: those held
-ticks are the checked ticks that release the stop. A reset never clears the start-up stop; a
+controller holds the arm meanwhile with the braking law and the drives, no brakes (category
+2): the held arm is the modelled plant, and its ticks are the checked ticks that release the
+stop. A reset never clears the start-up stop; a
 fault or violation while not ready replaces it with a latched stop of its own (with its
 window bag; the start-up stop writes none: nothing offended).
 """

@@ -128,3 +128,34 @@ def test_a_fault_before_the_release_latches_a_stop_only_a_reset_clears(bus, tmp_
         assert not any(not s.active for s in bus.stops)
     finally:
         processes.stop([proc])
+
+
+def test_the_controller_holds_the_start_up_stop_with_the_drives_not_the_brakes(bus):
+    """The ticks that release the start-up stop must check the modelled plant: the controller
+    holds the arm through it with the braking law and the drives (category 2), no brake, as
+    while it waits for the monitor's state; a stop a check latched brakes (category 1). Before:
+    category 1, a brake engaging on a joint not quite at rest was a violation at step 1 of
+    the held arm's first test cases (the closed-loop test in test_nodes.py)."""
+    from rclpy.parameter import Parameter
+    from reachset_msgs.msg import JointEstimate, SafeStop
+    from reachset_ros.nodes.common import to_stamp
+    from reachset_ros.nodes.controller_node import ControllerNode
+    over = {"joints": JOINTS, "u_max": [26.0, 26.0], "omega": [10.0], "zeta": [1.0], "allow_uncertified": True,
+            "reference_timeout": 0.0, "stop_category": 1}
+    node = ControllerNode(parameter_overrides=[Parameter(k, value=v) for k, v in over.items()])
+    ts = stamps(40)
+
+    def held(lo, hi):
+        for t in ts[lo:hi]:
+            e = JointEstimate(name=JOINTS, position=[0.3, -0.4], velocity=[0.0, 0.0], disturbance=[0.0, 0.0])
+            to_stamp(e.header.stamp, t)
+            node.on_estimate(e)
+    try:
+        node.on_safe_stop(SafeStop(active=True, kind="not_ready", reason=f"{MONITOR_NOT_READY} test"))
+        held(0, 20)                                        # at rest for 20 ticks (brakes: after 5)
+        assert node.braking() and node.stop is not None and not node.stop.engaged.any()
+        node.on_safe_stop(SafeStop(active=True, kind="violation", reason="test"))
+        held(20, 40)
+        assert node.stop.engaged.all()
+    finally:
+        node.destroy_node()
