@@ -4,8 +4,8 @@ Run: .venv/bin/python benchmarks/bench_closed_loop.py [--seconds 20] [--executor
 
 Starts the nodes of ``reachset demo`` as separate processes over Fast DDS (localhost):
 ``sim_node`` (realistic simulated LWA-4P, lockstep), ``reference_node``, ``observer_node``
-(HG), ``controller_node`` (static law) and ``monitor_node`` (without a model, as in the
-demo's training phases), once per executor (``REACHSET_EXECUTOR``). This process listens to ``/joint_states`` (with the
+(HG) and ``controller_node`` (static law), without a monitor as in the demo's training phases
+(a monitor without a model does not run, issue 34.1), once per executor (``REACHSET_EXECUTOR``). This process listens to ``/joint_states`` (with the
 ``EventsExecutor``) and, after a 6 s warm-up, measures for ``--seconds``:
 
 * **rate**: received ``/joint_states`` per wall-clock second (the simulator's target is
@@ -53,8 +53,7 @@ def run(executor, seconds, workdir, warmup=6.0):
              processes.start("observer_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
                           env=env),
              processes.start("controller_node", {"joints": joints, **INITIAL_GAINS, "allow_uncertified": True}, workdir,
-                          env=env),
-             processes.start("monitor_node", {"window_dir": str(workdir / "windows")}, workdir, env=env)]
+                          env=env)]
     rclpy.init()
     node = Node("bench_closed_loop")
     arrivals = []

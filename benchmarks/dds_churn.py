@@ -1,6 +1,6 @@
 """Participant churn against the running loop: does a process that joins or is SIGKILLed stall the others?
 
-The loop (sim_node in lockstep, reference, observer, controller, monitor without a model)
+The loop (sim_node in lockstep, reference, observer, controller; no monitor: none runs without a model)
 runs in a fresh DDS domain while, every ``--period`` s, a subscriber process (a bare rclpy
 node subscribed to ``/joint_states``, ``/effort_commands`` and ``/brake_command``, as a
 recorder is) starts, runs ``--life`` s and is killed with SIGKILL (or SIGINT with
@@ -81,7 +81,6 @@ def main():
         processes.start("reference_node", {"seed": 1}, work, group=procs)
         processes.start("observer_node", {**common, **INITIAL_GAINS}, work, group=procs)
         processes.start("controller_node", {**common, **INITIAL_GAINS}, work, group=procs)
-        processes.start("monitor_node", {}, work, group=procs)
         end = time.monotonic() + 60.0
         while len(arrivals) < 500 and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)

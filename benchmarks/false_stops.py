@@ -3,11 +3,11 @@
 The protocol of the paper and of issue 19: record the test cases on the motions that then
 run, calibrate the monitor's inflation on held-out recordings, then run.
 
-1. The suite (sim, reference, observer, controller, monitor without a model, synthesis node)
+1. The suite (sim, reference, observer, controller, synthesis node; no monitor before its model)
    in a fresh DDS domain; ``--runs`` recordings of ``--train`` s of simulated time each.
 2. ``reachset identify`` on every run but the last, ``--validate`` on the last (held out):
    the model's inflation is the calibrated one (``validation.validation_grid``).
-3. The monitor gets that model and is reset; then ``--minutes`` of simulated time of normal
+3. The monitor starts with that model (its start-up stop released by checked ticks); then ``--minutes`` of simulated time of normal
    running with a topic listener attached (a separate process subscribed to
    ``/joint_states`` and ``/conformance/status``, like ``ros2 topic echo``) and a synthesis
    running beside it (the synthesis node's ``~/synthesize`` on the training bags, apply
@@ -29,11 +29,10 @@ from pathlib import Path
 import rclpy
 from reachset_msgs.msg import ConformanceStatus
 from reachset_msgs.srv import Synthesize
-from std_srvs.srv import Trigger
 
 from reachset_ros import processes
 from reachset_ros.domain import pick_domain_id
-from reachset_ros.nodes.common import STATUS_QOS, set_remote_parameters, stamp_ns
+from reachset_ros.nodes.common import STATUS_QOS, stamp_ns
 from reachset_ros.workflows.commander import CORE_TOPICS, JOINTS, SuiteCommander
 
 LISTENER = """
@@ -88,8 +87,7 @@ def main():
         processes.start("sim_node", {"seed": 7, "realistic": True, "lockstep_timeout": 0.3}, work, group=procs)
         processes.start("reference_node", {"seed": 7}, work, group=procs)
         processes.start("observer_node", dict(common), work, group=procs)
-        processes.start("controller_node", dict(common, wait_for_monitor=True), work, group=procs)
-        processes.start("monitor_node", {"window_dir": str(work / "windows")}, work, group=procs)
+        processes.start("controller_node", dict(common), work, group=procs)    # training: no monitor yet
         processes.start("synthesis_node", {"workdir": str(work / "synthesis")}, work, group=procs)
         bags = [_record_run(driver, work / f"run{i + 1}", node=f"recorder_{i + 1}", seconds=a.train)
                 for i in range(a.runs)]
@@ -103,12 +101,9 @@ def main():
         out["inflation"] = ident["inflation"]
         out["chosen_inflation_per_joint"] = {n: j["validation"]["chosen_inflation"] for n, j in ident["joints"].items()}
         print(f"calibrated inflation {ident['inflation']}", file=sys.stderr, flush=True)
-        ok, why = set_remote_parameters(driver, "monitor_node", {"model_file": str(model)})
-        if not ok:
-            raise RuntimeError(f"monitor refused the model: {why}")
-        r = driver.call(Trigger, "/monitor_node/reset", Trigger.Request(), timeout=30.0)
-        if not r.success:
-            raise RuntimeError(f"reset: {r.message}")
+        # the monitor starts with its model (issue 34.1: none without one); its start-up stop is
+        # released by checked ticks of the held arm
+        procs.append(driver.start_monitor({"window_dir": str(work / "windows"), "model_file": str(model)}))
         driver.stops.clear()
         statuses = []
         driver.create_subscription(ConformanceStatus, "conformance/status", lambda m: statuses.append(m.conformant),

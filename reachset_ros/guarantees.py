@@ -38,6 +38,7 @@ ROWS = {
     "G9": "a margin that is not a number fails closed",
     "G10": "R_e and R_u are outer bounds in floating point",
     "G11": "the reference error is bounded for every reference the controller accepts",
+    "G12": "the arm moves only while a monitor with a model checks every input",
     "G13": "the monitor's verdicts keep up with the measurements",
     "G14": "only the audited reset clears a stop",
     "G17": "u_p is computed online as it was for identification (source, URDF, parameters)",

@@ -164,7 +164,9 @@ class Bus:
                    if not i.node_name.startswith("monitor"))
 
     def active_stops(self):
-        return [s for s in list(self.stops) if s.active]
+        """The active stops a check or fault latched: the monitor's start-up stop (``kind:
+        not_ready``, issue 34.1, which it releases itself) is left out."""
+        return [s for s in list(self.stops) if s.active and s.kind != "not_ready"]
 
     def distinct_active_stops(self):
         """The active stops without the monitor's repeats (same stamp, kind, joint, reason)."""
@@ -227,6 +229,21 @@ class Bus:
                 self.send_u(t, JOINTS[::-1], U[k][::-1])
             if pace:
                 time.sleep(pace)
+
+    def make_ready(self, timeout=60.0):
+        """Stream clean ticks (:func:`stream`) to a monitor that has just started until it
+        releases its start-up stop (issue 34.1: k* + 1 consecutive ticks checked to the
+        horizon, all conformant); returns the releasing message."""
+        from reachset_ros.nodes.common import MONITOR_STARTED
+        assert self.wait(lambda: self.js.get_subscription_count() and self.pi.get_subscription_count(), timeout)
+        assert self.wait(lambda: any(s.kind == "not_ready" for s in list(self.stops)), timeout), \
+            "no start-up stop (kind not_ready) from the monitor"
+        n = 2 * (HISTORY + HORIZON + 1)
+        Y, U = stream(n, seed=11)
+        self.send_ticks(stamps(n), Y, U)
+        released = lambda: [s for s in list(self.stops) if not s.active and s.reason == MONITOR_STARTED]
+        assert self.wait(lambda: released(), timeout), [s.reason for s in self.stops][-3:]
+        return released()[-1]
 
 
 HISTORY = 3     # the fd estimator's history: ticks of a segment before its first test case

@@ -71,6 +71,22 @@ def value_range(d):
 #: (observer and controller refuse uncertified gains without a model): the declared default
 #: is shown
 PROBE_OVERRIDES = {"allow_uncertified": (True, False)}     # name -> (probe value, declared default)
+#: per node, parameters the probe sets (``-p NODE:NAME:=VALUE``) so that the node starts at
+#: all, shown with their declared defaults: a monitor without a model does not run (issue
+#: 34.1), the probe gives it a one-joint model (:func:`probe_model`)
+NODE_PROBES = {"monitor_node": {"model_file": ""}}         # node -> {name: declared default}
+
+
+def probe_model(directory):
+    """A one-joint conformance model written to ``directory`` for the probe; its path."""
+    from reachset_ros.conformance import model as mdl
+    from reachset_ros.conformance.estimators import Estimator
+    from reachset_ros.systems.plant import lwa4p_joint_plant
+    sets = {"arm_1_joint": mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, 25)}
+    path = Path(directory) / "probe_model.yaml"
+    mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 25,
+                                  sets), path)
+    return path
 
 
 def table(node, skip):
@@ -95,6 +111,7 @@ def table(node, skip):
         value = node.get_parameter(name).value
         if name in PROBE_OVERRIDES:
             value = PROBE_OVERRIDES[name][1]
+        value = NODE_PROBES.get(node.get_name(), {}).get(name, value)
         default = literal(value)
         rows.append("| " + " | ".join([
             f"`{name}`", TYPES.get(d.type, str(d.type)), f"`{cell(default)}`", value_range(d),
@@ -116,10 +133,13 @@ def generate():
     import rclpy.logging
     tables = {}
     cwd = os.getcwd()
-    rclpy.init(args=["--ros-args"] + [a for n, (v, _) in PROBE_OVERRIDES.items()
-                                       for a in ("-p", f"{n}:={str(v).lower()}")])
-    try:
-        with tempfile.TemporaryDirectory(prefix="node_docs_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="node_docs_") as tmp:
+        model = probe_model(tmp)
+        rclpy.init(args=["--ros-args"] + [a for n, (v, _) in PROBE_OVERRIDES.items()
+                                           for a in ("-p", f"{n}:={str(v).lower()}")]
+                   + [a for node, names in NODE_PROBES.items() for n in names
+                      for a in ("-p", f"{node}:{n}:={model}")])
+        try:
             os.chdir(tmp)   # relative defaults (the recorder's bag) land here, not in the repo
             try:
                 probe = rclpy.create_node("node_docs_probe")
@@ -139,8 +159,8 @@ def generate():
                         node.destroy_node()
             finally:
                 os.chdir(cwd)
-    finally:
-        rclpy.try_shutdown()
+        finally:
+            rclpy.try_shutdown()
     return tables
 
 

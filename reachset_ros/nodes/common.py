@@ -38,9 +38,15 @@ SAFE_STOP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            liveliness=LivelinessPolicy.AUTOMATIC,
                            liveliness_lease_duration=Duration(seconds=MONITOR_LEASE_S))
 
-#: The reason of the state a monitor publishes when it starts (no stop active): it releases a
-#: controller waiting for the monitor, but not a stop of the controller's own.
-MONITOR_STARTED = "monitor started: no safe stop active"
+#: The reason of the state a monitor publishes when it releases its start-up stop (issue 34.1:
+#: k* + 1 consecutive ticks checked to the horizon, all conformant, on every input; no stop
+#: active): it releases a controller waiting for the monitor, but not a stop of the
+#: controller's own (only the monitor's ~/reset does).
+MONITOR_STARTED = "monitor ready: k*+1 consecutive ticks checked to the horizon, all conformant; no safe stop active"
+#: The reason prefix of the stop a monitor starts with (``kind: not_ready``): no model, no
+#: data, or fewer checked ticks than the release needs; the monitor releases it itself
+#: (:data:`MONITOR_STARTED`), never a reset.
+MONITOR_NOT_READY = "not ready:"
 #: per-tick data: reliable, a few ticks of history.
 TICK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)

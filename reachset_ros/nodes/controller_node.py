@@ -29,7 +29,9 @@ at once and latches a stop of its own (``no usable estimate``, logged, on ``/dia
 until the monitor's audited reset; the effort command of such a tick holds the last usable
 position (u_p = 0), so the drives always get a command. With ``wait_for_monitor`` it also
 holds until the first ``/safe_stop`` message, so that a restarted controller cannot move
-the arm in the moment before the latched stop reaches it. An estimate it cannot use (a joint
+the arm in the moment before the latched stop reaches it; the monitor's start-up stop
+(``kind: not_ready``, issue 34.1) is held the same way (category 2, the drives hold, no
+brakes), since the ticks that release it must check the modelled plant, not a braked arm. An estimate it cannot use (a joint
 missing, short arrays, non-finite values) is skipped; a reference it cannot use is
 treated as a late one (below); both are counted on ``/diagnostics``.
 
@@ -138,6 +140,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
             self.configure()
         self.refs = {}
         self.stop_active = False
+        self.monitor_not_ready = False   # the active stop is the monitor's start-up stop (kind not_ready)
         self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.stop = None             # StopState of the stop in progress (None while tracking)
         self.last_estimate_stamp = 0  # stamp of the newest estimate received (ns)
@@ -377,6 +380,9 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
                 self.get_logger().info(f"safe stop inactive: tracking {what}")
         self.stop_known = True
         self.stop_active = active
+        # the monitor's start-up stop (issue 34.1): held by the drives (category 2), so the
+        # ticks that release it check the modelled plant, not a braked arm
+        self.monitor_not_ready = active and msg.kind == "not_ready"
         if not self.stop_active:
             self.stop = None            # the brakes are released with the next command
             self.stop_received = 0
@@ -581,9 +587,10 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         if self.stop is None:
             self.stop = StopState(len(self.joints))
         before = int(self.stop.engaged.sum())
-        if self.stop_known and self.stop_active or self.own_stop is not None or self.hold_reason is not None:
+        if (self.stop_known and self.stop_active and not self.monitor_not_ready
+                or self.own_stop is not None or self.hold_reason is not None):
             u, _ = stop_tick(self.policy(), self.stop, stamp, q, qd, self.u_max)
-        else:   # waiting for the monitor's state: hold with the braking law, no brakes
+        else:   # waiting for the monitor's state or its release: hold with the braking law, no brakes
             u, _ = stop_tick(StopPolicy(category=2), self.stop, stamp, q, qd, self.u_max)
         now = int(self.stop.engaged.sum())
         if now > before:

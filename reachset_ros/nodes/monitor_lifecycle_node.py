@@ -11,8 +11,10 @@ driven through the standard lifecycle services (``~/change_state``, ``~/get_stat
   a model or source that does not load fails the transition (the reason logged), the node
   stays unconfigured;
 * **activate**: checking starts (``/conformance/status`` every tick, the watchdog); the
-  lifecycle's own stop is released (``active: false, kind: reset``). A stop latched by a
-  check (a violation, a fault) stays latched: only ``~/reset`` clears it;
+  lifecycle's own stop becomes the start-up stop of the plain node (``kind: not_ready``,
+  issue 34.1), which the node releases itself after k* + 1 consecutive ticks checked to the
+  horizon, all conformant, on every input (before: released at once, with nothing checked).
+  A stop latched by a check (a violation, a fault) stays latched: only ``~/reset`` clears it;
 * **deactivate**: checking stops; as nothing is checked any more, ``/safe_stop`` is latched
   active (``kind: manual``): the controller brakes and holds the arm;
 * **cleanup**: the model is dropped (back to unconfigured); **shutdown**: as for the plain node.
@@ -57,8 +59,8 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
 
     def lifecycle_stop(self, why):
         """Latch the lifecycle's own safe stop (the controller brakes and holds); a stop
-        already latched (by a check) stays as it is."""
-        if not self.stop_active:
+        already latched by a check stays as it is (the start-up stop is replaced)."""
+        if not self.stop_active or self.not_ready:
             self.publish_stop_state(True, "manual", f"{LIFECYCLE_STOP} {why}")
             self.get_logger().warning(f"safe stop latched: {self.stop_msg.reason}")
 
@@ -79,8 +81,8 @@ class MonitorLifecycleNode(MonitorNode, LifecycleNode):
         self.restart_watchdog()
         self.active = True
         if self.stop_active and self.stop_msg is not None and self.stop_msg.reason.startswith(LIFECYCLE_STOP):
-            self.publish_stop_state(False, "reset", f"{LIFECYCLE_STOP} active: checking")
-            self.get_logger().info("active: checking; the lifecycle's safe stop is released")
+            # not released here: released once checked ticks show the arm conformant
+            self.enter_not_ready(f"{LIFECYCLE_STOP} active, no tick checked yet")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -17,6 +17,20 @@ Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
 ``/diagnostics``; see :class:`MonitorCore` for what each kind of bad input becomes. A tick
 at which nothing was checked is published with ``conformant`` false (a violation is a
 margin < 0, and latches the stop).
+
+Start-up (issue 34.1): a ``model_file`` that is empty, missing, unreadable or refused (or an
+``input_source: effort`` whose robot cannot be loaded) ends the node at once: a one-line error,
+exit status 2, nothing published. Otherwise the node starts with an active, latched stop,
+``kind: not_ready`` (reason ``not ready: ...``), and releases it itself (``active: false``,
+reason :data:`~reachset_ros.nodes.common.MONITOR_STARTED`) only after k* + 1 consecutive ticks
+checked to the horizon, all conformant, on every input (a tick needs both ``/joint_states``
+and ``/plant_input``; ``/joint_states`` alone with ``input_source: effort``): an input that
+never arrives (a remap error) keeps the arm stopped, and ``/diagnostics`` names it. The
+controller holds the arm meanwhile with the braking law and the drives, no brakes (category
+2): the held arm is the modelled plant, and its ticks are the checked ticks that release the
+stop. A reset never clears the start-up stop; a
+fault or violation while not ready replaces it with a latched stop of its own (with its
+window bag; the start-up stop writes none: nothing offended).
 """
 from __future__ import annotations
 
@@ -35,6 +49,7 @@ from sensor_msgs.msg import JointState
 from reachset_msgs.srv import ResetStop
 from std_srvs.srv import Trigger
 
+from .. import guarantees
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor_core import TOPIC, MonitorCore
@@ -43,7 +58,7 @@ from ..errors import ReachsetError
 from ..robot.effort import load_effort_input
 from .audit import log_privileged
 from .param_callbacks import StagedRequest, add_parameter_callbacks
-from .common import MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, declare_realtime_priority, desc, spin_node, stamp_ns, to_stamp
+from .common import MONITOR_NOT_READY, MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, declare_realtime_priority, desc, spin_node, stamp_ns, to_stamp
 
 #: /joint_states and /plant_input into the monitor: reliable, and deep (2 s at 250 Hz), so a
 #: burst or a stalled executor costs latency, not ticks (samples wait in the DDS reader).
@@ -131,17 +146,21 @@ class MonitorNode(Node):
         self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
         self.param_request = StagedRequest()
         add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
-        path = self.get_parameter("model_file").value
-        if path and not self.MANAGED:           # the managed variant loads it on configure
-            ok, why = self.load(path)
-            if not ok:
-                self.get_logger().error(why)
-        elif self.effort_error:
-            self.get_logger().error(self.effort_error + " (no model can be loaded until it is fixed)")
-        if self.MANAGED:
+        if self.MANAGED:                        # the managed variant loads the model on configure
+            if self.effort_error:
+                self.get_logger().error(self.effort_error + " (no model can be loaded until it is fixed)")
             return
-        # the initial state, latched: a controller waiting for the monitor may start
-        self.publish_stop_state(False, "reset", MONITOR_STARTED)
+        # issue 34.1: a monitor that cannot check never runs (exit 2, one line, nothing
+        # published); one that can starts with an active stop that it releases itself
+        path = self.get_parameter("model_file").value
+        if not path:
+            raise guarantees.refused("G12", "model_file is empty: without a model nothing can be checked")
+        ok, why = self.load(path)
+        if not ok:
+            why = " ".join(f"model_file: {why}".split())
+            # a refusal of the model's own (e.g. G1, G17) names its row; any other is G12's
+            raise ReachsetError(why) if "[guarantee " in why else guarantees.refused("G12", why)
+        self.enter_not_ready("no tick checked yet")
 
     def publish_stop_state(self, active, kind, reason):
         """Publish (latched) a safe-stop state stamped now, without a check's details: the
@@ -152,6 +171,33 @@ class MonitorNode(Node):
         m.active, m.kind, m.reason = active, kind, reason
         self.stop_msg = m
         self.stop_pub.publish(m)
+
+    def enter_not_ready(self, why):
+        """Latch the start-up stop (``kind: not_ready``, issue 34.1): nothing is released until
+        :meth:`release_when_ready` has seen ``k* + 1`` consecutive ticks checked to the
+        horizon, all conformant, which takes both inputs (a tick is a /joint_states and a
+        /plant_input sample of the same stamp; /joint_states alone with ``input_source:
+        effort``). Written without an offending window: nothing offended."""
+        self.clean_ticks, self.last_unclean = 0, why
+        need = self.core.model.horizon + 1 if self.core is not None else "k*+1"
+        self.publish_stop_state(True, "not_ready",
+                                f"{MONITOR_NOT_READY} {why}; released after {need} consecutive ticks checked to "
+                                "the horizon, all conformant, on every input")
+        self.get_logger().warning(f"safe stop latched until the monitor is ready: {self.stop_msg.reason}")
+
+    @property
+    def not_ready(self):
+        """True while the active stop is the start-up stop (``kind: not_ready``)."""
+        return self.stop_active and self.stop_msg is not None and self.stop_msg.kind == "not_ready"
+
+    def release_when_ready(self):
+        """Release the start-up stop once ``k* + 1`` consecutive ticks were checked to the
+        horizon and conformant (the clean-tick count of :meth:`handle_events`); a stop
+        latched by a check stays (only a reset clears it)."""
+        if self.not_ready and self.core is not None and self.clean_ticks >= self.core.model.horizon + 1:
+            self.publish_stop_state(False, "reset", MONITOR_STARTED)
+            self.get_logger().info(f"ready: {self.clean_ticks} consecutive ticks checked to k*="
+                                   f"{self.core.model.horizon}, all conformant; the start-up stop is released")
 
     def repeat_stop(self):
         """Bounded delivery (issue 17.2): an active stop is published again every tick period
@@ -286,6 +332,7 @@ class MonitorNode(Node):
                                      f"tick {stamp} checked only up to step {ev.longest} of k*={self.core.model.horizon}")
             self.last_tick_wall = time.monotonic()
             self.publish_status(ev)
+            self.release_when_ready()
             viol = [j for j, s in enumerate(res["status"]) if s == "violation"]
             if viol:
                 j = viol[0]
@@ -316,8 +363,9 @@ class MonitorNode(Node):
         self.status_pub.publish(m)
 
     def trigger(self, stamp, kind, reason, joint="", step=-1, start_tick=-1, deviation=0.0, bound=0.0):
-        """Latch the safe stop (first cause wins) and write the offending window."""
-        if self.stop_active:
+        """Latch the safe stop (first cause wins; a fault or violation while not ready replaces
+        the start-up stop: it is latched, only a reset clears it) and write the offending window."""
+        if self.stop_active and not self.not_ready:
             return
         self.stop_active = True
         m = SafeStop()
@@ -407,6 +455,12 @@ class MonitorNode(Node):
         was = self.stop_active
         need = self.clean_needed()
         services = [self.resolve_service_name("~/reset"), self.resolve_service_name("~/reset_stop")]
+        if self.not_ready:
+            # the start-up stop is the monitor's own to release (issue 34.1), whatever
+            # reset_clean_ticks says: a reset must not release an arm nothing has checked
+            why = f"reset refused: {self.not_ready_detail()}"
+            log_privileged(self, f"safe-stop reset through {via}", caller, reason, why, services)
+            return False, why
         if was and need > 0:
             limit = self.get_parameter("max_missing_ticks").value * self.get_parameter("dt").value
             fresh = self.last_tick_wall is not None and time.monotonic() - self.last_tick_wall <= limit
@@ -426,12 +480,29 @@ class MonitorNode(Node):
         log_privileged(self, f"safe-stop reset through {via}", caller, reason, f"granted ({message})", services)
         return True, message
 
+    def not_ready_detail(self):
+        """Why the start-up stop still holds: an input that never arrived, or the clean ticks so far."""
+        need = self.core.model.horizon + 1 if self.core is not None else "k*+1"
+        kinds = ("y",) if self.effort is not None else tuple(TOPIC)
+        never = [TOPIC[k] for k in kinds if k not in self.first_rx_wall]
+        if self.core is None:
+            what = "no model loaded"
+        elif never:
+            what = "waiting for " + " and ".join(never) + " (never received)"
+        else:
+            what = (f"{self.clean_ticks} of {need} consecutive ticks checked to k* and conformant "
+                    f"(last not: {self.last_unclean})")
+        return (f"{MONITOR_NOT_READY} {what}; the monitor releases the stop itself after {need} consecutive "
+                "ticks checked to the horizon, all conformant, on every input")
+
     def publish_diagnostics(self):
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         st = DiagnosticStatus(name="reachset_ros: conformance monitor", hardware_id="")
         if self.core is None:
             st.level, st.message = DiagnosticStatus.WARN, "no model loaded"
+        elif self.not_ready:
+            st.level, st.message = DiagnosticStatus.WARN, self.not_ready_detail()
         elif self.stop_active:
             st.level, st.message = DiagnosticStatus.ERROR, f"safe stop: {self.stop_msg.reason}"
         elif self.last_tick_wall is None:

@@ -2,12 +2,13 @@
 from a seeded schedule (:mod:`reachset_ros.sim.campaign`), every stop measured.
 
 ``run_campaign`` starts the suite through the suite commander (:mod:`.commander`) as the
-demo does (calibrated simulated LWA-4P, reference, observer, controller with
-``wait_for_monitor``, monitor), records ``train`` s ``train_runs`` times with the initial
-gains, identifies the monitor's model from those recordings with the inflation calibrated by
-cross-validation on them, each recording a fold (``reachset identify BAG1 ... BAGn
---calibrate n --calibrate-margin m``: m grid steps above what the folds needed, for a run
-much longer than a fold), resets the monitor and then runs the events: for each, a
+demo does (calibrated simulated LWA-4P, reference, observer, controller), records ``train``
+s ``train_runs`` times with the initial gains, identifies the monitor's model from those
+recordings with the inflation calibrated by cross-validation on them, each recording a fold
+(``reachset identify BAG1 ... BAGn --calibrate n --calibrate-margin m``: m grid steps above
+what the folds needed, for a run much longer than a fold), starts the monitor with it (a
+monitor without a model does not run; its start-up stop is released by checked ticks of the
+held arm, issue 34.1) and then runs the events: for each, a
 fault-free stretch of monitored running, the fault, the wait for the stop, the braking it
 causes, and the recovery (faults cleared, a killed process restarted, the monitor reset, the
 arm tracking again for ``RECOVER_S`` without a stop; a stop during the recovery is counted
@@ -198,7 +199,9 @@ def suite_parameters(*, workdir, seed, realtime_priority, monitor_lockstep_ticks
         # synchronised moves alone left arm_2 at a third of qd_max: false stops on its fast moves)
         "reference_node": {"seed": seed, "lead": REFERENCE_LEAD},
         "observer_node": {**common, **INITIAL_GAINS},
-        "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": True,
+        # the training runs unmonitored (no model yet): the controller waits for the monitor
+        # only once one runs (set when it starts, for a restarted controller)
+        "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": False,
                             "robot_params": str(default_nominal_path())},
         "monitor_node": {"window_dir": str(workdir / "windows")},
         # the monitor's /joint_states pass through the relay: the link events drop or delay them
@@ -254,10 +257,18 @@ class _Campaign:
         return self.cmd.start(name, self.params[name], remap=self.remaps.get(name))
 
     def start_suite(self):
+        """Every node but the monitor, which starts once its model exists (:meth:`start_monitor`)."""
         for name in SUITE:
-            self.start(name)
-        self.cmd.wait_for_monitor(120.0)
+            if name != "monitor_node":
+                self.start(name)
         self.cmd.sim_wait(3.0)
+
+    def start_monitor(self, model):
+        """The monitor with ``model``, once its start-up stop is released (issue 34.1: a monitor
+        without a model does not run); a controller restarted from now on waits for it."""
+        self.params["monitor_node"]["model_file"] = str(model)
+        self.params["controller_node"]["wait_for_monitor"] = True
+        self.cmd.start_monitor(self.params["monitor_node"], remap=self.remaps.get("monitor_node"))
 
     def reset_monitor(self, o=None, patience_s=RESET_PATIENCE_S):
         """The monitor's ~/reset, tried again every 0.25 s of simulated time while it is refused
@@ -271,8 +282,8 @@ class _Campaign:
 
     # ------------------------------------------------------------------ training
     def record_training(self, i, train):
-        """Training recording ``i``: after a monitor reset, recorded again (up to TRAIN_TRIES
-        times) while a brake engaged during it. The arm must move through the whole
+        """Training recording ``i`` (unmonitored: no model yet), recorded again (up to
+        TRAIN_TRIES times, the controller restarted first) while a brake engaged during it. The arm must move through the whole
         recording: a stop the controller latched on its own (a reference lost at start-up on
         a slow machine) held every brake through the training of a fresh-clone make test, and
         the model identified on the held arm stopped the campaign at once on fault-free
@@ -280,8 +291,9 @@ class _Campaign:
         cmd, lis = self.cmd, self.lis
         bag = self.workdir / f"train{i}"
         for attempt in range(1, TRAIN_TRIES + 1):
-            self.reset_monitor()
-            cmd.sim_wait(0.5)   # brake commands still in flight from before the reset
+            if attempt > 1:     # no monitor yet, no reset: a stop of the controller's own ends with it
+                self.restart_node("controller_node", f"training{i}_try{attempt - 1}")
+            cmd.sim_wait(0.5)   # brake commands still in flight from before
             braked0 = lis.braked
             r = cmd.record(bag, CORE_TOPICS, node_name=f"recorder_train{i}_{attempt}")
             cmd.sim_wait(train)
@@ -326,7 +338,7 @@ class _Campaign:
         cmd, info = self.cmd, self.info
         bag, name = self.block_bag(0)
         self.rec = cmd.record(bag, MONITOR_TOPICS, node_name=name)
-        cmd.apply_model(model)
+        self.start_monitor(model)
         self.reset_monitor()
         cmd.sim_wait(RECOVER_S)
         wall0 = time.monotonic()
@@ -489,14 +501,18 @@ class _Campaign:
                  f"fault (stop stamp {(o.stops[0][0] - o.fault_ns) * 1e-6:+.1f} ms), braking "
                  f"{o.braking_ticks} ticks after its arrival")
 
+    def restart_node(self, name, suffix="restarted"):
+        """Stop ``name`` (if still running) and start it again, its old log kept beside the new one."""
+        proc = self.cmd.procs[name]
+        self.cmd.stop_processes([proc], timeout=2.0)
+        old = proc.log
+        old.rename(old.with_name(f"{old.stem}.{suffix}.log"))
+        self.start(name)
+
     def restart(self, ev):
         """The killed process of ``ev`` started again (its old log kept beside the new one)."""
         cmd = self.cmd
-        proc = cmd.procs[ev.target]
-        cmd.stop_processes([proc], timeout=2.0)
-        old = proc.log       # keep the killed process' log beside the new one
-        old.rename(old.with_name(f"{old.stem}.killed_event{ev.index:03d}.log"))
-        self.start(ev.target)
+        self.restart_node(ev.target, f"killed_event{ev.index:03d}")
         if ev.target == "sim_node":   # a new simulation (new clock): wait for it
             c0 = cmd.sim_now()
             if not cmd.spin_for(60.0, until=lambda: cmd.sim_now() > c0 + 200_000_000):

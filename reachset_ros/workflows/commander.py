@@ -34,7 +34,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .. import processes
-from ..nodes.common import SAFE_STOP_QOS, set_remote_parameters
+from ..nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, set_remote_parameters
 from ..robot.dynamics import JOINT_NAMES
 
 JOINTS = list(JOINT_NAMES)
@@ -255,6 +255,25 @@ class SuiteCommander(Node):
         """Spin until the monitor's first ``/safe_stop`` state (it has started)."""
         if not self.spin_for(timeout, until=lambda: bool(self.stops)):
             raise RuntimeError(f"no /safe_stop state from the monitor within {timeout:.0f} s")
+
+    def start_monitor(self, params, *, remap=None, timeout=120.0):
+        """Start ``monitor_node`` (``params`` name its ``model_file``) and spin until it has
+        released its start-up stop (issue 34.1): the controller holds the arm at rest under
+        that stop, and k* + 1 ticks of the held arm checked conformant release it. A stop the
+        monitor latches meanwhile (a violation, a fault), or no release within ``timeout`` s
+        of wall time, raises. Returns the process."""
+        n = len(self.stops)
+
+        def done():
+            return any(s.active and s.kind != "not_ready" or not s.active and s.reason == MONITOR_STARTED
+                       for s in self.stops[n:])
+        proc = self.start("monitor_node", params, remap=remap)
+        met = self.spin_for(timeout, until=done)
+        stopped = [s for s in self.stops[n:] if s.active and s.kind != "not_ready"]
+        if stopped or not met:
+            why = f"{stopped[0].kind}: {stopped[0].reason}" if stopped else f"no release within {timeout:.0f} s"
+            raise RuntimeError(f"the monitor did not release its start-up stop ({why}; log {proc.log})")
+        return proc
 
     def active_stops(self):
         """The active ``/safe_stop`` messages received."""

@@ -21,7 +21,12 @@ def test_every_node_has_a_section():
 def test_params_file_loads_into_the_node(name, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)                       # nodes may create their default directories
     expected = yaml.safe_load(CONFIG.read_text())[name]["ros__parameters"]
-    rclpy.init(args=["--ros-args", "--params-file", str(CONFIG)])
+    extra = []
+    if name == "monitor_node":      # issue 34.1: a monitor without a model does not start
+        from helpers import write_model
+        expected = {**expected, "model_file": str(write_model(tmp_path / "m.yaml"))}
+        extra = ["-p", f"model_file:={expected['model_file']}"]
+    rclpy.init(args=["--ros-args", "--params-file", str(CONFIG), *extra])
     try:
         cls = getattr(importlib.import_module(f"reachset_ros.nodes.{name}"), CLASSES[name])
         node = cls()

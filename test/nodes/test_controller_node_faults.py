@@ -503,6 +503,8 @@ class TestMonitorLost:
         path = write_model(tmp_path / "m.yaml")
         mon = processes.start("monitor_node", {"model_file": str(path), "max_missing_ticks": 10000,
                                             "reset_clean_ticks": 0, "window_dir": str(tmp_path / "w")}, tmp_path)
+        bus.clear()
+        bus.make_ready()            # issue 34.1: the monitor's start-up stop released by checked ticks
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True)
         pub = None
         try:

@@ -13,9 +13,9 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from reachset_msgs.msg import BrakeCommand, ConformanceStatus, JointEstimate, JointReference, PlantInput, SafeStop
 from sensor_msgs.msg import JointState
 
-from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, stream, write_model
+from helpers import HORIZON, JOINTS, NO_VERDICTS, PUB_QOS, Recorder, stream, write_model
 from reachset_ros import processes
-from reachset_ros.nodes.common import SAFE_STOP_QOS, to_stamp
+from reachset_ros.nodes.common import MONITOR_NOT_READY, MONITOR_STARTED, SAFE_STOP_QOS, to_stamp
 
 
 pytestmark = pytest.mark.dds   # real DDS participants / node processes
@@ -44,8 +44,10 @@ def transition(node, target, tid):
 
 
 def test_monitor_lifecycle(ros, tmp_path):
-    """unconfigured: stop latched, nothing checked; a missing model fails configure (stays
-    unconfigured); configure + activate: the stop is released and every tick is checked;
+    """unconfigured: stop latched, nothing checked; a missing, empty or refused model fails
+    configure (stays unconfigured); configure + activate: every tick is checked, and the stop
+    becomes the start-up stop (``not_ready``), released only after k* + 1 ticks checked to the
+    horizon, all conformant (issue 34.1; before: released at activation, nothing checked);
     deactivate: the stop is latched again and checking stops."""
     rec = Recorder("lc_mon_listener", {"conformance/status": ConformanceStatus, "safe_stop": SafeStop})
     js_pub = ros.create_publisher(JointState, "joint_states", PUB_QOS)
@@ -63,8 +65,12 @@ def test_monitor_lifecycle(ros, tmp_path):
             pi_pub.publish(p)
             time.sleep(0.002)
 
+    refused = tmp_path / "refused.yaml"
+    refused.write_text("format: nonsense\n")
     bad = processes.start("monitor_lifecycle_node", {"model_file": str(tmp_path / "missing.yaml"),
                                                   "window_dir": str(tmp_path / "w")}, tmp_path, node_name="bad_mon")
+    worse = [processes.start("monitor_lifecycle_node", {"model_file": m, "window_dir": str(tmp_path / "w")},
+                             tmp_path / f"bad{i}", node_name=f"bad_mon{i}") for i, m in enumerate(("", str(refused)))]
     mon = processes.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
                                                   "window_dir": str(tmp_path / "w")}, tmp_path,
                        node_name="monitor_node")
@@ -73,9 +79,13 @@ def test_monitor_lifecycle(ros, tmp_path):
         assert not transition(ros, "bad_mon", Transition.TRANSITION_CONFIGURE)
         assert state(ros, "bad_mon") == State.PRIMARY_STATE_UNCONFIGURED
         assert "configure failed" in bad.log.read_text() and "missing.yaml" in bad.log.read_text()
+        for i, p in enumerate(worse):
+            assert not transition(ros, f"bad_mon{i}", Transition.TRANSITION_CONFIGURE)
+            assert state(ros, f"bad_mon{i}") == State.PRIMARY_STATE_UNCONFIGURED
+            assert "configure failed" in p.log.read_text()
         # an unconfigured monitor repeats its latched stop every tick (issue 17.2): it would hold
         # a robot; it goes before the other one's /safe_stop states are read
-        processes.stop([bad])
+        processes.stop([bad, *worse])
 
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_UNCONFIGURED
         stops = rec.msgs["safe_stop"]
@@ -87,12 +97,16 @@ def test_monitor_lifecycle(ros, tmp_path):
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_INACTIVE
         assert transition(ros, "monitor_node", Transition.TRANSITION_ACTIVATE)
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_ACTIVE
-        assert rec.wait(lambda: not stops[-1][1].active, 20)       # the lifecycle's stop is released
+        # the lifecycle's stop becomes the start-up stop, not a release
+        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "not_ready", 20)
+        assert stops[-1][1].reason.startswith(MONITOR_NOT_READY)
         send(100, 700)
         status = rec.msgs["conformance/status"]
         assert rec.wait(lambda: len(status) >= 590, 30), len(status)
         assert all(min(m.margin) >= 0 for _, m in status)            # conformant data: no violation
-        assert not any(m.active for _, m in stops[-1:])
+        held = [m for _, m in status if m.safe_stop_active]          # released after k*+1 checked ticks
+        assert [m.active_test_cases for m in held].count(HORIZON + 1) == HORIZON + 1
+        assert rec.wait(lambda: not stops[-1][1].active and stops[-1][1].reason == MONITOR_STARTED, 20)
         assert transition(ros, "monitor_node", Transition.TRANSITION_DEACTIVATE)
         assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "manual", 20)
         n = len(status)

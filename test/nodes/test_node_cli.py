@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import rclpy
 
+from helpers import write_model
 from reachset_ros import processes
 from reachset_ros.nodes.common import set_remote_parameters
 
@@ -38,7 +39,8 @@ def test_help_prints_usage_and_starts_nothing(script):
 def test_start_summary_and_read_only_start_up_parameters(tmp_path):
     procs = [processes.start("sim_node", {"seed": 5}, tmp_path),
              processes.start("observer_node", {"allow_uncertified": True}, tmp_path),
-             processes.start("monitor_node", {"window_dir": str(tmp_path / "w")}, tmp_path)]
+             processes.start("monitor_node", {"window_dir": str(tmp_path / "w"),
+                                              "model_file": str(write_model(tmp_path / "m.yaml"))}, tmp_path)]
     rclpy.init()
     node = rclpy.create_node("node_cli_test")
     try:

@@ -77,11 +77,15 @@ def nodes(ros, tmp_path_factory, extra_args):
 
 @pytest.fixture
 def monitor(ros, nodes, tmp_path):
-    """Starts a monitor_node for one test (with the given parameters); stops it afterwards."""
+    """Starts a monitor_node for one test (with the given parameters); stops it afterwards. It
+    starts with a model of every joint (issue 34.1: a monitor without a model does not run)."""
     started = []
 
     def start(**params):
-        p = processes.start("monitor_node", {"window_dir": str(tmp_path / "windows"), **params}, tmp_path)
+        from helpers import write_model
+        model = write_model(tmp_path / "monitor_start.yaml", joints=ALL_JOINTS)
+        p = processes.start("monitor_node", {"window_dir": str(tmp_path / "windows"), "model_file": str(model),
+                                             **params}, tmp_path)
         started.append(p)
         values, why = get_remote_parameters(ros, "monitor_node", ["model_file"], timeout=60.0)
         assert values is not None, f"{why}: {p.log.read_text()[-500:]}"
