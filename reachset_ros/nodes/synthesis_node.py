@@ -86,6 +86,19 @@ def certify_synthesis(data, model_file):
     return ""
 
 
+def recorded_loop_outside(data):
+    """Empty, or why a result may not be applied: a joint whose own recorded loop (the bags'
+    tracking error with the kept gains, ``recorded_loop`` of ``reachset synthesize --json``,
+    ``verified``) leaves its R*_e (``inside`` false; issue 34.5, the rule of
+    :func:`reachset_ros.synthesis.recorded_loop.require_inside`)."""
+    for name, j in data.get("joints", {}).items():
+        d = j.get("recorded_loop") or {}
+        if d.get("verified") and d.get("ticks") and not d.get("inside"):
+            reach = max((r for r in d.get("reach", []) if r is not None), default=float("nan"))
+            return f"joint {name}: the loop recorded with these gains leaves R*_e ({reach:.4g} of its radius)"
+    return ""
+
+
 def one_line(text):
     """``text`` with its line breaks and runs of white space folded into single spaces."""
     return " ".join(str(text).split())
@@ -269,6 +282,9 @@ class SynthesisNode(Node):
                if not j.get("conformant", False) or not j.get("ru_inside_up", True)]
         if bad:
             return False, f"joint {bad[0]}: result not conformant or R_u outside U_p", data, ""
+        why = recorded_loop_outside(data)
+        if why:            # the worker refuses it already (recorded_loop.require_inside); never applied
+            return False, why, data, ""
         norms = ", ".join(f"{n} {j['re_norm']:.3g}" for n, j in data["joints"].items())
         return True, f"{mode}: ||R_e|| {norms}; model {out}", data, str(out)
 
