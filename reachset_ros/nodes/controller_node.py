@@ -62,6 +62,7 @@ from .common import MONITOR_LEASE_S, MONITOR_STARTED, SAFE_STOP_QOS, TICK_QOS, d
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
+from .pair_gate import check_running_pair
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
@@ -291,6 +292,7 @@ class ControllerNode(Node):
                     return SetParametersResult(successful=False, reason=str(e)), None
         try:
             cfg = self.validate(values, model)
+            check_running_pair(self, params, values, model)      # with the observer's running half (issue 34.6)
         except ReachsetError as e:
             return SetParametersResult(successful=False, reason=str(e)), None
         return SetParametersResult(successful=True), cfg
