@@ -30,7 +30,7 @@ from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..synthesis.reference_error import u_e_ff_for_gains
 from ..systems.gains import GAIN_KEYS, TYPE_KEYS, certify_pair
-from .common import desc, get_remote_parameters
+from .common import desc, get_remote_parameters, set_remote_parameters
 
 defaults.register("nodes.pair", {
     "timeout": (2.0, "seconds the observer and controller nodes wait for the other node's parameters when they "
@@ -153,3 +153,55 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
         except ReachsetError as e:
             raise ReachsetError(f"the pair that would run with {partner}'s current {half} gains is refused by "
                                 f"{who} gate: {e}") from None
+
+
+def set_pair(node, changes, *, timeout=10.0):
+    """Set the parameters ``changes`` (``{target: {name: value}}``, e.g. the same gains for
+    ``observer_node`` and ``controller_node``) on the nodes of a pair, all or none.
+
+    Each target certifies the pair that will run after its change with the other's running
+    half (:func:`check_running_pair`), so the targets are set one after the other: in the
+    given order and, when the first refuses, in the reverse order (of the two intermediate
+    pairs one may be certified when the other is not). A target that refuses after another
+    accepted has the accepted ones set back to their previous values of the same parameters.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The client node (spun here until each answer arrives).
+    changes : dict
+    timeout : float
+        Seconds per parameter call.
+
+    Returns
+    -------
+    ok : bool
+    reason : str
+        Empty when every target accepted; else one line per order tried: which node refused
+        and why, and whether the others were set back.
+    """
+    targets = list(changes)
+    previous = {}
+    for t in targets:
+        cur, why = get_remote_parameters(node, t, list(changes[t]), timeout=timeout)
+        if cur is None:
+            return False, why
+        previous[t] = cur
+    reasons = []
+    for order in ([targets, targets[::-1]] if len(targets) == 2 else [targets]):
+        done = []
+        for t in order:
+            ok, why = set_remote_parameters(node, t, changes[t], timeout=timeout)
+            if not ok:
+                reasons.append(f"{t} refused: {' '.join(why.split())}")
+                break
+            done.append(t)
+        else:
+            return True, ""
+        failed = [t for t in reversed(done) if not set_remote_parameters(node, t, previous[t], timeout=timeout)[0]]
+        if failed:
+            return False, f"{reasons[-1]}; ROLLBACK FAILED for {', '.join(failed)}, which keeps the new values"
+        if done:
+            reasons[-1] += f"; {', '.join(done)} set back"
+            break            # something was applied and set back: no second order from there
+    return False, "; in the reverse order: ".join(reasons)

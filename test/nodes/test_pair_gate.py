@@ -102,3 +102,26 @@ def test_a_node_that_cannot_read_the_other_refuses_gain_changes(ros, tmp_path):
         assert ok, why
     finally:
         processes.stop([ctl, alone])
+
+
+def test_a_change_of_both_halves_is_applied_to_both_nodes_or_to_neither(ros, pair):
+    """``pair_gate.set_pair`` (the commander's ``apply_gains``): omega 30 with h1 = 20, h2 = 60
+    is certified, but omega 30 with the observer's running 15/30 is not: the controller refuses
+    first, so the observer is set first and then the controller. omega 26 with h1 = h2 = 8 is
+    refused in both orders and neither node changes."""
+    from reachset_ros.nodes.pair_gate import set_pair
+    procs, model = pair
+    assert _gate(model, omega=30.0, h1=20.0, h2=60.0) == "" and _gate(model, h1=20.0, h2=60.0) == ""
+    assert "R*_u" in _gate(model, omega=30.0)
+    names = ["omega", "h1", "h2"]
+    new = {"omega": [30.0], "h1": [20.0], "h2": [60.0]}
+    ok, why = set_pair(ros, {"controller_node": new, "observer_node": new})
+    assert ok, why
+    for node in ("controller_node", "observer_node"):
+        assert get_remote_parameters(ros, node, names)[0] == new
+    bad = {"omega": [26.0], "h1": [8.0], "h2": [8.0]}
+    ok, why = set_pair(ros, {"controller_node": bad, "observer_node": bad})
+    assert not ok and why.startswith("controller_node refused:") and "R*_u" in why, why
+    for node in ("controller_node", "observer_node"):
+        assert get_remote_parameters(ros, node, names)[0] == new
+    assert all(p.alive() for p in procs)
