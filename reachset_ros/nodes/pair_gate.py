@@ -136,17 +136,22 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
     run, joints = running_values(node, values, other)
     gains = gains_from(run, node.joints)
     half = "observer" if role(node) == "controller" else "controller"
-    gates = [("this node's", model, u_max_array(values["u_max"], len(node.joints)), float(values["u_ff_bound"]),
-              bool(values["allow_uncertified"]))]
+    own = ("this node's", model, u_max_array(values["u_max"], len(node.joints)), float(values["u_ff_bound"]),
+           bool(values["allow_uncertified"]))
     path = str(other["model_file"] or "")
     own_path = str(values.get("model_file") or "")
     try:
         other_model = model if path == own_path else (mdl.load(path) if path else None)
     except ReachsetError as e:
         raise ReachsetError(f"{partner}'s model_file {path}: {e}") from None
-    gates.append((f"{partner}'s", other_model,
-                  np.asarray(_per_joint(other["u_max"], joints, node.joints, "u_max", partner)),
-                  float(other["u_ff_bound"]), bool(other["allow_uncertified"])))
+    theirs = (f"{partner}'s", other_model, np.asarray(_per_joint(other["u_max"], joints, node.joints, "u_max", partner)),
+              float(other["u_ff_bound"]), bool(other["allow_uncertified"]))
+    # a certificate costs seconds (U_e,ff over the reference class): none is computed twice.
+    # The node's own gate (validate_pair) certified its copy already; the other node's gate
+    # with the same model and limits is the same gate
+    same_pair = gains == gains_from(values, node.joints)
+    same_gate = (other_model is model and theirs[3:] == own[3:] and np.array_equal(theirs[2], own[2]))
+    gates = ([] if same_pair else [own]) + ([] if same_gate else [theirs])
     for who, m, u_max, u_ff, allow in gates:
         try:
             certify_pair(gains, m, u_max, u_ff, node.dt, allow, u_e_ff_for=u_e_ff_for)
