@@ -33,8 +33,9 @@ from ..systems.gains import GAIN_KEYS, TYPE_KEYS, certify_pair
 from .common import desc, get_remote_parameters, set_remote_parameters
 
 defaults.register("nodes.pair", {
-    "timeout": (2.0, "seconds the observer and controller nodes wait for the other node's parameters when they "
-                     "certify the pair that will run (pair_node); no answer: the change is refused"),
+    "timeout": (10.0, "seconds the observer and controller nodes wait for the other node's parameters when they "
+                      "certify the pair that will run (pair_node); no answer: the change is refused (the synthesis "
+                      "node's per-call timeout: 2 s timed out on the loaded 2-core machine during the demo)"),
 }, owner=__name__)
 
 #: the parameters each node's half of the loop consists of (the rest is its copy of the other half)
@@ -58,6 +59,8 @@ def declare_pair_parameters(node):
                                 "the controller for the observer); every gain or model change is certified for the "
                                 "pair that will run with that node's current gains, by both nodes' gates; '' for a "
                                 "node run alone (only its own copy of the pair is certified)", read_only=True))
+    if node.get_parameter("pair_node").value:
+        _client(node)           # made now: discovered by the time a change needs it
 
 
 def _per_joint(value, joints, own_joints, name, partner):
@@ -129,7 +132,11 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
     if not partner or not any(p.name in GAIN_CHANGE_PARAMS for p in params):
         return
     timeout = float(defaults.get("nodes.pair.timeout"))
-    other, why = get_remote_parameters(_client(node), partner, READ, timeout=timeout)
+    client = _client(node)
+    if partner.lstrip("/") not in [n for n, _ in client.get_node_names_and_namespaces()]:
+        raise ReachsetError(f"the pair that will run cannot be certified: {partner} is not running (pair_node "
+                            f"{partner!r}; '' for a node run alone)")
+    other, why = get_remote_parameters(client, partner, READ, timeout=timeout)
     if other is None:
         raise ReachsetError(f"the pair that will run cannot be certified: {why} (pair_node {partner!r}; '' for a "
                             "node run alone)")

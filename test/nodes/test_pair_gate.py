@@ -94,7 +94,8 @@ def test_a_node_that_cannot_read_the_other_refuses_gain_changes(ros, tmp_path):
         for name in ("controller_node", "lone_controller"):
             values, why = get_remote_parameters(ros, name, ["pair_node"], timeout=60.0)
             assert values is not None, why
-        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [21.0]})
+        # (the controller waits nodes.pair.timeout for the absent node before it answers)
+        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [21.0]}, timeout=60.0)
         assert not ok and "the pair that will run cannot be certified" in why and "no_such_observer" in why, why
         ok, why = set_remote_parameters(ros, "controller_node", {"stop_max_time": 0.25})
         assert ok, why
