@@ -41,6 +41,8 @@ ROWS = {
     "G12": "the arm moves only while a monitor with a model checks every input",
     "G13": "the monitor's verdicts keep up with the measurements",
     "G14": "only the audited reset clears a stop",
+    "G15": "the recorded closed loop lies inside the certified R*_e",
+    "G16": "controller and observer run one certified pair of gains",
     "G17": "u_p is computed online as it was for identification (source, URDF, parameters)",
     "G18": "the inflation was calibrated on the sets the monitor checks",
 }

@@ -85,7 +85,7 @@ def probe_model(directory):
     sets = {"arm_1_joint": mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, 25)}
     path = Path(directory) / "probe_model.yaml"
     mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 25,
-                                  sets), path)
+                                  sets, input_source=mdl.PLANT_INPUT), path)
     return path
 
 

@@ -76,6 +76,7 @@ from .gain_params import (current_values, declare_certificate_parameters, declar
                           proposed_values,
                           validate_pair)
 from . import monitor_health
+from .pair_gate import check_running_pair
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
@@ -309,6 +310,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
                     return SetParametersResult(successful=False, reason=str(e)), None
         try:
             cfg = self.validate(values, model)
+            check_running_pair(self, params, values, model)      # with the observer's running half (issue 34.6)
         except ReachsetError as e:
             return SetParametersResult(successful=False, reason=str(e)), None
         return SetParametersResult(successful=True), cfg

@@ -15,6 +15,7 @@ from ..robot.dynamics import JOINT_NAMES
 from ..synthesis.reference_error import u_e_ff_for_gains
 from ..systems.gains import DEFAULTS, ESO_INPUTS, GAIN_KEYS, TYPE_KEYS, Gains, certify_pair
 from .common import desc
+from .pair_gate import check_running_pair, declare_pair_parameters  # noqa: F401 (check_running_pair: for the nodes)
 
 #: description and range of each gain parameter (the keys and defaults: defaults ``gains.keys``,
 #: ``gains.startup``, registered by :mod:`reachset_ros.systems.gains`)
@@ -80,7 +81,8 @@ def log_gain_change(node, params, result):
 
 
 def declare_certificate_parameters(node):
-    """What the gate of the pair needs: the model, U_p, U_ff and the explicit opt-out."""
+    """What the gate of the pair needs: the model, U_p, U_ff, the explicit opt-out and the
+    node running the other half (``pair_node``, :mod:`~reachset_ros.nodes.pair_gate`)."""
     node.declare_parameter("model_file", "", desc("conformance model the gains are certified against (R*_u inside "
                                                   "U_p with its sets and inflation)"))
     node.declare_parameter("u_max", default_u_max(),
@@ -88,6 +90,7 @@ def declare_certificate_parameters(node):
     node.declare_parameter("u_ff_bound", defaults.get("gains.u_ff"),
                            desc("bound of the feedforward |qdd_d|, rad/s^2, that R_u is certified for; references "
                                 "beyond it are flagged reference_out_of_class", 0.0, 1000.0))
+    declare_pair_parameters(node)
     node.declare_parameter("allow_uncertified", False,
                            desc("run gains that no model certifies (no model_file, or a joint not in it) on closed-"
                                 "loop stability alone; without it they are refused"))

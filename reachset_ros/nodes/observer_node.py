@@ -12,7 +12,9 @@ ignores it). It starts (and restarts after a gain change) at the first measureme
 atomically between ticks, and pass the same gate as the controller's
 (:func:`~reachset_ros.nodes.gain_params.validate_pair`: the pair's closed loop stable and,
 with a ``model_file``, R*_u inside U_p for the monitored sets; without one only with
-``allow_uncertified``); refused gains are refused with the reason.
+``allow_uncertified``), and the pair that will run with the controller's current gains passes
+both nodes' gates (:func:`~reachset_ros.nodes.pair_gate.check_running_pair`, ``pair_node``);
+refused gains are refused with the reason.
 """
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -25,13 +27,15 @@ from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
-from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
-                          proposed_values,
-                          validate_pair)
+from .gain_params import (check_running_pair, current_values, declare_certificate_parameters, declare_gain_parameters,
+                          log_gain_change, proposed_values, validate_pair)
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 
 class ObserverNode(Node):
+    #: this node runs the observer half of the pair (:mod:`~reachset_ros.nodes.pair_gate`)
+    GAIN_ROLE = "observer"
+
     def __init__(self):
         super().__init__("observer_node")
         declare_realtime_priority(self)
@@ -111,7 +115,9 @@ class ObserverNode(Node):
             for p in params:
                 if p.name == "model_file":
                     model = mdl.load(p.value) if p.value else None
-            cfg = self.validate(proposed_values(self, params), model)
+            values = proposed_values(self, params)
+            cfg = self.validate(values, model)
+            check_running_pair(self, params, values, model)     # with the controller's running half (issue 34.6)
         except ReachsetError as e:
             result = SetParametersResult(successful=False, reason=str(e))
             log_gain_change(self, params, result)

@@ -12,7 +12,9 @@ publishes the result on ``synthesis/result``
 (latched), and, when ``apply`` is set and every joint is conformant with R_u inside U_p,
 applies the gains and the model through the other nodes' parameter services:
 ``controller_node`` first (it re-checks stability and R_u ⊆ U_p and may refuse), then
-``observer_node``, then ``monitor_node``. Nothing is applied from a failed or
+``observer_node``, then ``monitor_node`` (each of the first two certifies the pair that will
+run with the other's running half, :mod:`~reachset_ros.nodes.pair_gate`; when the controller
+refuses that intermediate pair, the observer is tried first). Nothing is applied from a failed or
 non-conformant result.
 
 Gains are applied by joint name: the controller and observer read their per-joint arrays
@@ -83,6 +85,19 @@ def certify_synthesis(data, model_file):
                 return f"joint {name}: {c.reason}"
     except (ReachsetError, KeyError, TypeError, ValueError) as e:
         return f"the synthesis result cannot be certified: {one_line(e)}"
+    return ""
+
+
+def recorded_loop_outside(data):
+    """Empty, or why a result may not be applied: a joint whose own recorded loop (the bags'
+    tracking error with the kept gains, ``recorded_loop`` of ``reachset synthesize --json``,
+    ``verified``) leaves its R*_e (``inside`` false; issue 34.5, the rule of
+    :func:`reachset_ros.synthesis.recorded_loop.require_inside`)."""
+    for name, j in data.get("joints", {}).items():
+        d = j.get("recorded_loop") or {}
+        if d.get("verified") and d.get("ticks") and not d.get("inside"):
+            reach = max((r for r in d.get("reach", []) if r is not None), default=float("nan"))
+            return f"joint {name}: the loop recorded with these gains leaves R*_e ({reach:.4g} of its radius)"
     return ""
 
 
@@ -170,6 +185,19 @@ def target_values(target, current, synthesis, keys):
             arr[joints.index(j)] = float(g[k])
         values[k] = arr
     return values, ""
+
+
+def apply_orders(plan):
+    """The orders in which :meth:`SynthesisNode.apply` tries to set ``plan``'s targets: as
+    planned (controller, observer, monitor), then, when the controller refused first, with the
+    observer first. Each of the two certifies the pair that will run after its change with the
+    other's running half (:mod:`~reachset_ros.nodes.pair_gate`, issue 34.6): of the two
+    intermediate pairs (new controller with the old observer, or the reverse) one may be
+    certified when the other is not."""
+    yield plan
+    names = [p[0] for p in plan]
+    if names[:2] == ["controller_node", "observer_node"]:
+        yield [plan[1], plan[0], *plan[2:]]
 
 
 class SynthesisNode(Node):
@@ -269,6 +297,9 @@ class SynthesisNode(Node):
                if not j.get("conformant", False) or not j.get("ru_inside_up", True)]
         if bad:
             return False, f"joint {bad[0]}: result not conformant or R_u outside U_p", data, ""
+        why = recorded_loop_outside(data)
+        if why:            # the worker refuses it already (recorded_loop.require_inside); never applied
+            return False, why, data, ""
         norms = ", ".join(f"{n} {j['re_norm']:.3g}" for n, j in data["joints"].items())
         return True, f"{mode}: ||R_e|| {norms}; model {out}", data, str(out)
 
@@ -369,7 +400,10 @@ class SynthesisNode(Node):
         observer/controller type, a target not answering) changes nothing. Each target's
         parameters are set atomically; on a refusal the targets already updated get their
         previous values of the same parameters back, the last updated first. The node's
-        own ``model_file`` is set only when every target accepted.
+        own ``model_file`` is set only when every target accepted. The controller and the
+        observer each certify the pair that will run after their change with the other's
+        running half (:mod:`~reachset_ros.nodes.pair_gate`); when the controller refuses first
+        (nothing applied yet), the observer is set first instead (:func:`apply_orders`).
         """
         why = certify_synthesis(data, model_file)
         if why:
@@ -399,15 +433,38 @@ class SynthesisNode(Node):
             if current is None:
                 return False, why
             plan.append(("monitor_node", {"model_file": model_file}, current))
+        refusals = []
+        for order in apply_orders(plan):
+            ok, why, applied_some = self.set_in_order(order)
+            if ok:
+                break
+            refusals.append(why)
+            if applied_some:        # set back (or not) already: no second order from there
+                break
+        if not ok:
+            return False, "; with the observer first: ".join(refusals)
+        self.set_parameters([Parameter("model_file", value=model_file)])
+        self.write_applied(plan)
+        return True, ""
+
+    def set_in_order(self, plan):
+        """Set the targets of ``plan`` one after the other; on a refusal set the ones done back.
+
+        Returns
+        -------
+        ok : bool
+        reason : str
+            Which node refused and why, and what the roll-back did.
+        applied_some : bool
+            A target had accepted before the refusal.
+        """
         done = []
         for node, values, previous in plan:
             ok, why = set_remote_parameters(self.client_node, node, values)
             if not ok:
-                return False, f"{node} refused: {one_line(why)}; {self.roll_back(done)}"
+                return False, f"{node} refused: {one_line(why)}; {self.roll_back(done)}", bool(done)
             done.append((node, previous))
-        self.set_parameters([Parameter("model_file", value=model_file)])
-        self.write_applied(plan)
-        return True, ""
+        return True, "", bool(done)
 
     def write_applied(self, plan):
         """The applied values as a ROS 2 parameter file (``--params-file``), so that a restart

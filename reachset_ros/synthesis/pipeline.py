@@ -46,14 +46,26 @@ def iterate(record, series, space, *, iterations=2, final_reidentify=True, plant
        paths, ``{joint: JointSeries}`` or ``({joint: JointSeries}, {joint: [Reference]})`` (e.g.
        :func:`reachset_ros.sim.recordings.recordings_series` of
        :func:`reachset_ros.sim.recordings.simulate_arm_recordings`; the simulator or the node
-       suite drives the robot);
+       suite drives the robot), or ``(series, references, estimates)`` (``estimates``: ``{joint: (stamps, ndarray
+       (T, 3))}``, the recorded ``/observer/estimate`` as :func:`reachset_ros.bags.read_estimates`
+       gives it);
     3. repeat 1-2 ``iterations`` times in total, each synthesis seeded with the kept gains;
        then, if ``final_reidentify``, record once more and re-identify the sets with the
-       controller fixed.
+       controller fixed. When that recording holds estimates (bags with
+       ``/observer/estimate`` or the three-tuple) and references, the sets must also hold its
+       recorded loop (:func:`reachset_ros.synthesis.recorded_loop.constrain`, as
+       ``synthesize --mode reidentify``), and a loop recorded with the kept gains that still
+       leaves R*_e is refused (:func:`~reachset_ros.synthesis.recorded_loop.require_inside`,
+       issue 34.5).
 
     No drift to worse gains: per joint the synthesis with the smallest guaranteed ‖R*_e‖ so
     far is *kept* (each ‖R*_e‖ is guaranteed for the data it was synthesised on); the next
     recording, the next synthesis's seed and the re-identification use the kept gains.
+
+    Raises
+    ------
+    RecordedLoopError
+        The re-identification's own recorded loop leaves its R*_e.
 
     Returns
     -------
@@ -85,12 +97,19 @@ def iterate(record, series, space, *, iterations=2, final_reidentify=True, plant
                 best[n] = (float(r.re_norm), step, r)
         prev = {n: b[2] for n, b in best.items()}
         if it + 1 < iterations or final_reidentify:
-            data, refs = _as_series(record({n: r.gains() for n, r in prev.items()}), dt)
+            raw = record({n: r.gains() for n, r in prev.items()})
+            data, refs = _as_series(raw, dt)
     kept = {n: b[1] for n, b in best.items()}
     if final_reidentify and prev:
         probs = problems_from_series(data, plant, estimator, horizon, u_max, u_ff, refs,
                                      reference_method=reference_method, thm=thm, reference_class=reference_class)
-        res = synthesize(probs, space, "reidentify", gains={n: r.gains() for n, r in prev.items()})
+        gains = {n: r.gains() for n, r in prev.items()}
+        # the sets must also hold the loop recorded with the kept gains (issue 34.5), as in
+        # solve(): its rows, then refused if it still leaves R*_e
+        loops = _iterate_loops(raw, plant, gains, dt)
+        probs = [rl.constrain(pb, gains[pb.name], loops.get(pb.name)) for pb in probs]
+        res = synthesize(probs, space, "reidentify", gains=gains)
+        rl.require_inside(res)
         history.append({"step": "re-identification", "results": res, "kept": kept})
     elif prev:
         history.append({"step": "kept", "results": prev, "kept": kept})
@@ -98,14 +117,41 @@ def iterate(record, series, space, *, iterations=2, final_reidentify=True, plant
 
 
 def _as_series(data, dt):
-    """``(series, references)`` of bag paths, ``{joint: JointSeries}`` or ``(series, references)``."""
+    """``(series, references)`` of bag paths, ``{joint: JointSeries}``, ``(series, references)``
+    or ``(series, references, estimates)``."""
     if isinstance(data, dict):
         return data, {}
-    if isinstance(data, tuple) and len(data) == 2 and isinstance(data[0], dict):
+    if isinstance(data, tuple) and len(data) in (2, 3) and isinstance(data[0], dict):
         return data[0], dict(data[1] or {})
     paths = [Path(p) for p in data]
     series, _ = read_joint_series(paths, None, dt)
     return series, read_references(paths, list(series), dt)
+
+
+def _iterate_loops(data, plant, gains, dt):
+    """``{joint: LoopExtremes or None}``: the loop a recording of :func:`iterate`'s ``record``
+    holds with ``gains`` (:mod:`~reachset_ros.synthesis.recorded_loop`): bag paths (their
+    ``/observer/estimate``, bag by bag as :func:`_recorded_loops`) or ``(series, references,
+    estimates)`` with ``estimates`` ``{joint: (stamps, ndarray (T, 3))}``
+    (:func:`reachset_ros.bags.read_estimates`); empty for data without estimates."""
+    loops = {n: components_from_gains(g, plant.dt) for n, g in gains.items()}
+    if isinstance(data, dict):
+        return {}
+    if isinstance(data, tuple) and isinstance(data[0], dict):
+        if len(data) < 3 or not data[2]:
+            return {}
+        series, refs, est = data[0], dict(data[1] or {}), data[2]
+        return {n: rl.series_loop_extremes(plant, *loops[n], series[n], est.get(n), refs.get(n, ()))
+                for n in loops if n in series}
+    parts = {n: [] for n in loops}
+    for bag in (Path(p) for p in data):
+        series, _ = read_joint_series([bag], None, dt)
+        refs = read_references([bag], list(series), dt)
+        est = read_estimates([bag], list(series)) or {}
+        for n in parts:
+            if n in series:
+                parts[n].append(rl.series_loop_extremes(plant, *loops[n], series[n], est.get(n), refs.get(n, ())))
+    return {n: rl.merge(v) for n, v in parts.items()}
 
 
 # ====================================================================== bags in, model out
@@ -419,6 +465,8 @@ def solve(pl: SynthesisPlan, data: BagData):
         loop_ext = data.loops or {}
         problems = [rl.constrain(pb, pl.gains[pb.name], loop_ext.get(pb.name)) for pb in problems]
     results = synthesize(problems, pl.space, o.mode, search, seed, gains=pl.gains, lqg_r=tuple(o.lqg_r or ()))
+    if pl.loops:      # the CLI, the synthesis node's worker: nothing applies a loop R*_e leaves (issue 34.5)
+        rl.require_inside(results)
     return BagSynthesis(results=results, problems=problems, report=data.report, plant=pl.plant,
                         plant_spec=pl.plant_spec, estimator=pl.estimator, horizon=pl.horizon, space=pl.space,
                         mode=o.mode, seed=seed, reference_method=int(o.reference_method), bags=pl.bags,

@@ -34,7 +34,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import guarantees
 from ..errors import InfeasibleError, ReachsetError
+
+
+class RecordedLoopError(guarantees.GuaranteeRefused):
+    """A re-identification's own recorded loop leaves the ``R*_e`` it would certify (issue
+    34.5): the sets do not describe the robot the loop ran on, so nothing may apply them."""
 from ..systems.closedloop import close_loop, settling_ticks, stability
 from ..systems.reference_loop import lti_simulate, reference_state
 from .config import SearchSpace
@@ -296,3 +302,35 @@ def report(problem, result):
              reach=[float(x) if np.isfinite(x) else None for x in reach],
              inside=bool(ext.ticks > 0 and np.all(reach <= 1.0)))
     return d
+
+
+def require_inside(results):
+    """Refuse re-identification results whose own recorded loop leaves ``R*_e``.
+
+    Every path that applies re-identified sets (``reachset synthesize --mode reidentify``,
+    the synthesis node through its worker, :func:`reachset_ros.synthesis.pipeline.iterate`)
+    calls this on ``{joint: JointResult}``: a joint whose ``extra["recorded_loop"]``
+    (:func:`report`) was recorded with the kept gains (``verified``) and judged on some ticks
+    must lie inside the result's ``R*_e`` (``inside``). A loop recorded with other gains says
+    nothing about these gains' ``R*_e`` and is only reported.
+
+    Raises
+    ------
+    RecordedLoopError
+        One line naming the joint, the coordinate and how far the recorded error reaches
+        (above 1: outside), and whether the loop's rows were in the problem.
+    """
+    coords = ("q", "qd", "d")
+    for name, res in results.items():
+        d = (getattr(res, "extra", None) or {}).get("recorded_loop")
+        if not d or not d.get("verified") or not d.get("ticks") or d.get("inside"):
+            continue
+        reach = [(-np.inf if r is None else float(r)) for r in d.get("reach", [])]
+        worst = int(np.nanargmax(reach)) if reach else 0
+        why = ("with its rows in the problem (the LP's tolerance)" if d.get("constrained") else
+               "its rows were not in the problem (reference method other than 3)")
+        raise RecordedLoopError(
+            f"joint {name}: the loop recorded with these gains leaves R*_e: its tracking error reaches "
+            f"{reach[worst] if reach else float('nan'):.4g} of R*_e's radius in {coords[worst]} over "
+            f"{int(d['ticks'])} judged ticks ({why}); the sets do not describe this loop: refused "
+            f"{guarantees.tag('G15')}", row="G15")

@@ -35,6 +35,7 @@ from std_srvs.srv import Trigger
 
 from .. import processes
 from ..nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, set_remote_parameters
+from ..nodes.pair_gate import set_pair
 from ..robot.dynamics import JOINT_NAMES
 
 JOINTS = list(JOINT_NAMES)
@@ -213,9 +214,13 @@ class SuiteCommander(Node):
         self.set_parameters("monitor_node", {"model_file": str(model_file)}, refused="monitor refused the model")
 
     def apply_gains(self, gains, *, targets=("observer_node", "controller_node")):
-        """Set the gain parameters ``gains`` (``{name: value}``) on each of ``targets``."""
-        for target in targets:
-            self.set_parameters(target, gains, refused=f"{target} refused the gains")
+        """Set the gain parameters ``gains`` (``{name: value}``) on each of ``targets``, all or
+        none (:func:`reachset_ros.nodes.pair_gate.set_pair`: each node certifies the pair that
+        will run with the other's running half; the other order is tried, accepted targets
+        are set back on a refusal); raises ``RuntimeError`` naming the node that refused."""
+        ok, why = set_pair(self, {t: dict(gains) for t in targets})
+        if not ok:
+            raise RuntimeError(f"the gains were refused: {why}")
 
     def inject_fault(self, kind, *, joint, magnitude):
         """The simulator's fault ``kind`` on ``joint`` (its ``fault*`` parameters)."""

@@ -46,7 +46,8 @@ def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, 
     controller's; TestMonitorStalled sets its own)."""
     params = {"joints": JOINTS, "u_max": list(u_max), "omega": [10.0], "zeta": [1.0],
               "wait_for_monitor": wait_for_monitor, "stop_category": stop_category,
-              "allow_uncertified": model is None, **(NO_VERDICTS if verdicts is None else verdicts)}
+              "allow_uncertified": model is None, "pair_node": "",     # run alone: no observer (issue 34.6)
+              **(NO_VERDICTS if verdicts is None else verdicts)}
     if model is not None:
         params["model_file"] = str(model)
     return processes.start("controller_node", params, d)
@@ -776,7 +777,7 @@ class TestOneGateForThePair:
     def test_observer_refuses_gains_whose_pair_is_not_certified(self, bus, tmp_path):
         model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
         obs = processes.start("observer_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
-                                             "omega": [10.0], "zeta": [1.0]}, tmp_path)
+                                             "omega": [10.0], "zeta": [1.0], "pair_node": ""}, tmp_path)
         try:
             assert bus.wait(lambda: bus.js.get_subscription_count() >= 1, 30), obs.log.read_text()
             # eps 0.0005: the observer alone would run (stable), but the pair's R*_u leaves U_p

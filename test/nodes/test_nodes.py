@@ -44,7 +44,7 @@ def spin_until(node, cond, timeout):
 def test_controller_gains_through_parameter_service(ros, tmp_path):
     model = write_model(tmp_path / "m.yaml", alpha_w=(0.05, 4.0), alpha_v=(1e-4,))
     ctl = processes.start("controller_node", {"joints": JOINTS, "model_file": str(model), "u_max": [26.0, 26.0],
-                                           "omega": [10.0], "zeta": [1.0]}, tmp_path)
+                                           "omega": [10.0], "zeta": [1.0], "pair_node": ""}, tmp_path)
     got = []
     ros.create_subscription(PlantInput, "plant_input", lambda m: got.append(m), TICK_QOS)
     est_pub = ros.create_publisher(JointEstimate, "observer/estimate", TICK_QOS)

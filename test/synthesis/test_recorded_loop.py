@@ -7,6 +7,7 @@ re-identified ``R*_e`` (by 1.9 % on this recording); with the recorded loop's ro
 inside, and a bag recorded with other gains is recognised and not used as rows.
 """
 import json
+import re
 
 import numpy as np
 import pytest
@@ -128,3 +129,72 @@ def test_bags_with_overlapping_stamps_give_the_fleets_recorded_loop(recording, t
     assert got["one"] == got["fleet"]
     own = rl.merge([_extremes(rec[NAME], sr.DEFAULT_GAINS) for rec in (recording, second)])
     assert got["one"]["ticks"] == own.ticks and got["one"]["verified"]
+
+
+# ------------------------------------------------------------------ issue 34.5: every path refuses
+def _loop_data(rec):
+    """``(series, references, estimates)`` of one recording, as :func:`iterate`'s ``record`` returns it."""
+    series, refs = sr.recordings_series({NAME: rec})
+    return series, refs, {NAME: _estimates(rec)}
+
+
+def _fixed_space():
+    """The search space with every gain fixed at the recording's (no search): iterate keeps them."""
+    fix = {k: v for k, v in sr.DEFAULT_GAINS.items() if k in ("omega", "zeta", "h1", "h2", "eps")}
+    return sy.SearchSpace.from_config(sy.load_config(), "hg", free=[], fix=fix)
+
+
+def test_iterate_keeps_its_own_recorded_loop_inside_r_e_or_refuses(recording, tmp_path):
+    """Issue 34.5: the iterative procedure's re-identification holds the loop recorded with the
+    kept gains (estimates handed back by ``record``, or read from its bags), as ``synthesize
+    --mode reidentify`` does; when the rows cannot be in the problem (reference method 2) and
+    the loop leaves R*_e it is refused. Before, iterate re-identified from the open-loop test
+    cases alone: the recorded error reached 1.019 of R*_e and the result was returned."""
+    bag = tmp_path / "bag"
+    sr.write_recordings(bag, recording)
+    hist = sy.iterate(lambda gains: [bag], [bag], _fixed_space(), iterations=1, u_max=100.0)
+    final = hist[-1]["results"][NAME]
+    assert hist[-1]["step"] == "re-identification" and final.gains()["omega"] == 20.0
+    d = final.extra.get("recorded_loop")
+    assert d is not None, "the recorded loop was not looked at"
+    assert d["verified"] and d["constrained"] and d["inside"] and d["ticks"] > 7000
+    data = _loop_data(recording[NAME])
+    hist = sy.iterate(lambda gains: data, data[:2], _fixed_space(), iterations=1, u_max=100.0)
+    d = hist[-1]["results"][NAME].extra["recorded_loop"]
+    assert d["verified"] and d["constrained"] and d["inside"] and max(d["reach"]) <= 1.0
+    with pytest.raises(rl.RecordedLoopError, match=r"joint arm_6_joint: the loop recorded with these gains leaves R\*_e"):
+        sy.iterate(lambda gains: data, data[:2], _fixed_space(), iterations=1, u_max=100.0, reference_method=2)
+
+
+def test_cli_worker_and_node_refuse_a_reidentification_whose_recorded_loop_leaves_r_e(recording, tmp_path):
+    """Issue 34.5: with reference method 2 the recorded loop's rows are not in the problem; the
+    re-identified R*_e then misses the loop its own bag recorded. ``synthesize --mode
+    reidentify`` and the synthesis node's worker (the node's path) refuse it in one line with
+    exit 2, so the node gets no result to apply; the node's own check of a result refuses it
+    too. Before, both wrote the model and reported ``inside: false``."""
+    import subprocess
+    import sys
+
+    bag, model = tmp_path / "bag", tmp_path / "m.yaml"
+    sr.write_recordings(bag, recording)
+    r = run_cli("synthesize", bag, "--fix", "omega=20", "--fix", "zeta=1", "--out", model, "--json")
+    assert r.returncode == 0, r.stderr
+    args = [bag, "--mode", "reidentify", "--model", model, "--reference-method", "2", "--json"]
+    r = run_cli("synthesize", *args, "--out", tmp_path / "re.yaml")
+    assert r.returncode == 2 and not (tmp_path / "re.yaml").exists(), r.stdout
+    line, = r.stderr.strip().splitlines()
+    assert re.search(r"error: joint arm_6_joint: the loop recorded with these gains leaves R\*_e: its tracking error "
+                     r"reaches 1\.\d+ of R\*_e's radius in q", line), line
+    w = subprocess.run([sys.executable, "-m", "reachset_ros.commands._synthesis_worker", "synthesize", *map(str, args)],
+                       capture_output=True, timeout=300)
+    assert w.returncode == 2 and w.stdout == b"", w.stderr
+    assert w.stderr.decode().strip().splitlines()[-1] == line
+    # method 3 (default): the rows hold it, the same bag is accepted
+    r = run_cli("synthesize", *args[:-3], "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["joints"][NAME]["recorded_loop"]["inside"], r.stderr
+    # the node's check of a result (its worker refuses first)
+    from reachset_ros.nodes.synthesis_node import recorded_loop_outside
+    out = {"joints": {NAME: {"recorded_loop": {"verified": True, "ticks": 10, "inside": False, "reach": [1.02, 0.3]}}}}
+    assert recorded_loop_outside(out).startswith("joint arm_6_joint: the loop recorded with these gains leaves R*_e")
+    out["joints"][NAME]["recorded_loop"]["verified"] = False        # another loop's bag: only reported
+    assert recorded_loop_outside(out) == ""

@@ -174,7 +174,7 @@ def test_controller_gate_bounds_u_e_ff_over_its_class_for_a_model_from_recorded_
     assert all(c.u_e_ff[1] > 5 for c in expect.values())          # the class bound, not the record's 0.5
     rclpy.init(args=["--ros-args", "-p", f"model_file:={path}", "-p", "joints:=[arm_1_joint]",
                      "-p", "u_max:=[26.0]", "-p", "omega:=[24.4]", "-p", "zeta:=[0.96]",
-                     "-p", "h1:=[15.0]", "-p", "h2:=[30.0]"])
+                     "-p", "h1:=[15.0]", "-p", "h2:=[30.0]", "-p", "pair_node:=''"])      # no observer
     try:
         if not expect[24.4].ok:
             with pytest.raises(ReachsetError, match="U_e,ff"):
