@@ -463,9 +463,28 @@ def u_e_ff_for_gains(gains, joint_sets, plant, u_ff=None):
         cls = rc if covers else accepted
     if cls is None:
         return None
-    obs, ctrl = gains.build(plant.dt)
-    try:
-        r = class_reference_error(plant, obs, ctrl, cls)
-    except NotStableError:
-        return None
-    return (float(r.u_lo), float(r.u_hi))
+    key = (tuple(sorted(gains.model_dict().items())), _plant_key(plant), float(cls.qdd_max), float(cls.step_max))
+    if key not in _CLASS_U_E_FF:
+        obs, ctrl = gains.build(plant.dt)
+        try:
+            r = class_reference_error(plant, obs, ctrl, cls)
+            _CLASS_U_E_FF[key] = (float(r.u_lo), float(r.u_hi))
+        except NotStableError:
+            _CLASS_U_E_FF[key] = None
+        while len(_CLASS_U_E_FF) > _CLASS_U_E_FF_SIZE:
+            _CLASS_U_E_FF.pop(next(iter(_CLASS_U_E_FF)))
+    return _CLASS_U_E_FF[key]
+
+
+#: the class bounds :func:`u_e_ff_for_gains` computed: (gains, plant, class) -> (lo, hi) or None.
+#: The bound is a pure function of these (seconds each: the nodes' gate runs it for every
+#: joint at every gain change, six times for one pair of gains); oldest first out.
+_CLASS_U_E_FF = {}
+_CLASS_U_E_FF_SIZE = 256
+
+
+def _plant_key(plant):
+    """The plant's matrices and dt as bytes: two equal plants give equal keys."""
+    arrays = (plant.A, plant.B, plant.C, plant.D, plant.Gw, plant.Gv)
+    return (float(plant.dt),) + tuple(None if a is None else (np.asarray(a, np.float64).shape,
+                                                            np.asarray(a, np.float64).tobytes()) for a in arrays)
