@@ -13,12 +13,12 @@ model below the minimum that does not record the flag, :func:`require_model_hori
 Two bindings (issue 34.10/11), checked by the readers:
 
 * ``input_source``: how u_p was computed for the data the sets were identified from
-  (``{kind: plant_input}``: the plant-input topic; ``{kind: effort, urdf_sha256,
+  (``{kind: topic}``: the plant-input topic; ``{kind: effort, urdf_sha256,
   params_sha256, locked_joints, joints, torque_scale}``: from the measured effort with a URDF,
   :meth:`reachset_ros.robot.effort.EffortInput.binding`). ``check``, ``replay`` and the
   monitor refuse data whose u_p comes from another source (:func:`require_input_source`), and
   a model that records none (written before the binding existed): re-identify it, or, when its
-  data's u_p came from the plant-input topic, add ``input_source: {kind: plant_input}``.
+  data's u_p came from the plant-input topic, add ``input_source: {kind: topic}``.
 * ``calibration``: when the inflation was calibrated (``identify --calibrate``/``--validate``,
   :func:`reachset_ros.workflows.calibrate.calibrate_model`), the digest of the sets it was
   calibrated on (:func:`sets_digest`) and the inflation; every reader refuses a model whose
@@ -282,7 +282,7 @@ def require_model_horizon(plant, horizon, joints, *, recorded, below, source):
 
 # ------------------------------------------------------------------ how u_p was computed (34.10)
 #: ``input_source`` of data whose u_p is the plant-input topic (``--input topic``, the default)
-PLANT_INPUT = {"kind": "plant_input"}
+PLANT_INPUT = {"kind": "topic"}
 _EFFORT_KEYS = ("urdf_sha256", "params_sha256", "locked_joints", "joints", "torque_scale")
 
 
@@ -296,8 +296,8 @@ def input_source_of(effort=None):
 def _input_source(v, source):
     if v is None:
         return None
-    if not isinstance(v, dict) or v.get("kind") not in ("plant_input", "effort"):
-        raise ReachsetError(f"{source}: input_source must be a mapping with kind plant_input or effort, got {v!r}")
+    if not isinstance(v, dict) or v.get("kind") not in ("topic", "effort"):
+        raise ReachsetError(f"{source}: input_source must be a mapping with kind topic or effort, got {v!r}")
     if v["kind"] == "effort":
         missing = [k for k in _EFFORT_KEYS if k not in v]
         if missing:
@@ -306,7 +306,7 @@ def _input_source(v, source):
 
 
 def _describe_source(b):
-    if b["kind"] == "plant_input":
+    if b["kind"] == "topic":
         return "the plant-input topic"
     params = "no parameter document" if b.get("params_sha256") is None else f"parameters {b['params_sha256'][:12]}"
     return f"effort with URDF {b['urdf_sha256'][:12]}, {params}"
@@ -336,7 +336,7 @@ def require_input_source(model: ConformanceModel, effort=None, *, source):
     if rec is None:
         raise guarantees.refused("G17", f"{source}: the model records no input_source (how u_p was computed when it was "
                             f"identified; written before issue 34.10): re-identify it, or, if its data's u_p came "
-                            f"from the plant-input topic, add the line 'input_source: {{kind: plant_input}}'")
+                            f"from the plant-input topic, add the line 'input_source: {{kind: topic}}'")
     if rec["kind"] != have["kind"]:
         raise guarantees.refused("G17", f"{source}: the model was identified with u_p from {_describe_source(rec)}, but this u_p "
                             f"comes from {_describe_source(have)} (--input / the monitor's input_source)")

@@ -53,13 +53,13 @@ def test_a_model_without_input_source_is_refused_until_bound(cmd, two_bags, cali
     _, bags = two_bags
     ident, _ = calibrated
     doc = yaml.safe_load(ident.read_text())
-    assert doc["input_source"] == {"kind": "plant_input"}
+    assert doc["input_source"] == {"kind": "topic"}
     doc.pop("input_source")
     old = tmp_path / "old.yaml"
     old.write_text(yaml.safe_dump(doc))
     code, so, se = run([cmd, bags[0], "--model", old, "--json"], capsys)
-    assert_one_line_error(code, so, se, cmd, [str(old), "records no input_source", "input_source: {kind: plant_input}"])
-    doc["input_source"] = {"kind": "plant_input"}
+    assert_one_line_error(code, so, se, cmd, [str(old), "records no input_source", "input_source: {kind: topic}"])
+    doc["input_source"] = {"kind": "topic"}
     old.write_text(yaml.safe_dump(doc))
     run_json([cmd, bags[0], "--model", old], capsys)
 
@@ -70,7 +70,7 @@ def test_identify_and_synthesize_record_the_source_and_the_calibrated_sets(calib
     on its sets (before, neither file recorded either)."""
     ident, synth = calibrated
     m, s = mdl.load(ident), mdl.load(synth)
-    assert m.input_source == s.input_source == {"kind": "plant_input"}
+    assert m.input_source == s.input_source == {"kind": "topic"}
     assert m.calibration["method"] == "cross_validation" and m.calibration["folds"] == 2
     assert m.calibration["sets_sha256"] == mdl.sets_digest(m) and m.calibration["inflation"] == m.inflation
     assert m.calibration["rule"]["sets"] == "identify"

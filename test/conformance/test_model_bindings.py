@@ -32,18 +32,18 @@ def test_input_source_round_trips_and_a_model_without_one_is_refused(tmp_path):
     and accept it once bound."""
     mdl.save(_model(), tmp_path / "m.yaml")
     m = mdl.load(tmp_path / "m.yaml")
-    assert m.input_source == {"kind": "plant_input"}
-    assert mdl.require_input_source(m, None, source="m.yaml") == {"kind": "plant_input"}
+    assert m.input_source == {"kind": "topic"}
+    assert mdl.require_input_source(m, None, source="m.yaml") == {"kind": "topic"}
     old = yaml.safe_load((tmp_path / "m.yaml").read_text())
     old.pop("input_source")
     (tmp_path / "old.yaml").write_text(yaml.safe_dump(old))
     unbound = mdl.load(tmp_path / "old.yaml")           # the file still loads (observer, controller)
-    with pytest.raises(ReachsetError, match=r"records no input_source .*input_source: \{kind: plant_input\}"):
+    with pytest.raises(ReachsetError, match=r"records no input_source .*input_source: \{kind: topic\}"):
         mdl.require_input_source(unbound, None, source="old.yaml")
-    old["input_source"] = yaml.safe_load("{kind: plant_input}")
+    old["input_source"] = yaml.safe_load("{kind: topic}")
     (tmp_path / "old.yaml").write_text(yaml.safe_dump(old))
     mdl.require_input_source(mdl.load(tmp_path / "old.yaml"), None, source="old.yaml")
-    for bad, words in (({"kind": "joint_states"}, "kind plant_input or effort"),
+    for bad, words in (({"kind": "joint_states"}, "kind topic or effort"),
                        ({"kind": "effort", "urdf_sha256": "ab"}, "has no params_sha256")):
         old["input_source"] = bad
         (tmp_path / "bad.yaml").write_text(yaml.safe_dump(old))
