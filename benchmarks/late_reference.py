@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from reachset_ros.sim.reference import ReferenceConfig, ReferenceGenerator  # noqa: E402
 from reachset_ros.systems import late_reference as lr  # noqa: E402
+from reachset_ros.systems.reentry import switching_reference  # noqa: E402
 
 
 def main(argv=None):
@@ -60,15 +61,6 @@ def main(argv=None):
         held = np.abs(Q[:-k] - Q[k:]).max()
         print(f"| {h * 1e3:g} | {eq:.3g} | {eqd:.3g} | {qdd_max * h * h:.3g} | {held:.3g} |")
     return 0
-
-
-def _trapezoid(dt, u_ff, switch=250, T=1000):
-    acc = np.full(T, u_ff)
-    acc[switch:] = -u_ff
-    acc[2 * switch:] = 0.0
-    qd = np.concatenate([[0.0], np.cumsum(acc[:-1]) * dt])
-    q = np.concatenate([[0.0], np.cumsum(qd[:-1] * dt + 0.5 * acc[:-1] * dt * dt)])
-    return q, qd, acc
 
 
 def _blend(ref, k0, n, dt, u_ff, omega=10.0):
@@ -99,7 +91,7 @@ def reentry():
     plant = lwa4p_joint_plant()
     obs, ctl = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0).build()
     y_e_ref = float(class_reference_error(plant, obs, ctl, ReferenceClass(qdd_max=u_ff)).e_hi[0])
-    ref = _trapezoid(dt, u_ff, switch)
+    ref = switching_reference(dt=dt, u_ff=u_ff, switch=switch)
     print(f"nominal loop: HG h1 15, h2 30, omega 20, zeta 1; U_p {u_p:g}, u_ff {u_ff:g}, Y_e,ref {y_e_ref:.4g} rad")
     print("| late ticks | back ticks after the switch | max |u_p| rad/s^2 | max |e| rad "
           "| blend: max distance to /reference rad | blend: ticks until on it |")

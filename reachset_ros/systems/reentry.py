@@ -39,7 +39,7 @@ import numpy as np
 
 from .late_reference import extrapolate
 
-__all__ = ["ReentryWatch", "class_step"]
+__all__ = ["ReentryWatch", "class_step", "switching_reference"]
 
 
 def class_step(prev, sample, h, u_ff):
@@ -121,3 +121,22 @@ class ReentryWatch:
         q, qd, _ = extrapolate(*prev[1], h)
         return {"stamp": int(stamp), "joints": np.flatnonzero(~ok), "dq": np.asarray(ref[0]) - q,
                 "dqd": np.asarray(ref[1]) - qd}
+
+
+def switching_reference(*, dt, u_ff, switch=250, ticks=1000):
+    """The reference of the issue-34.3 measurement: ``+u_ff`` until tick ``switch``, then
+    ``-u_ff`` until ``2 switch``, then at rest; sampled exactly (zero-order-hold integrals of
+    ``qdd_d``, so in the class ``qdd_max = u_ff``). Used by ``test/systems/test_reentry.py`` and
+    ``benchmarks/late_reference.py --reentry``.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(q_d, qd_d, qdd_d)``, each of length ``ticks``.
+    """
+    a = np.full(ticks, float(u_ff))
+    a[switch:] = -float(u_ff)
+    a[2 * switch:] = 0.0
+    qd = np.concatenate([[0.0], np.cumsum(a[:-1]) * dt])
+    q = np.concatenate([[0.0], np.cumsum(qd[:-1] * dt + 0.5 * a[:-1] * dt * dt)])
+    return q, qd, a

@@ -8,7 +8,7 @@ from reachset_ros.systems import closedloop
 from reachset_ros.systems import late_reference as lr
 from reachset_ros.systems.gains import Gains
 from reachset_ros.systems.plant import lwa4p_joint_plant
-from reachset_ros.systems.reentry import ReentryWatch, class_step
+from reachset_ros.systems.reentry import ReentryWatch, class_step, switching_reference
 from reachset_ros.systems.reference_loop import simulate_closed_loop
 
 PLANT = lwa4p_joint_plant()
@@ -17,14 +17,9 @@ GAINS = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0)
 U_P, U_FF, DT = 26.0, 2.0, 0.004
 
 
-def _trapezoid(T=1000, switch=250):
-    """Accelerate at +u_ff, switch to -u_ff at tick ``switch``, rest after 2 switch ticks."""
-    a = np.full(T, U_FF)
-    a[switch:] = -U_FF
-    a[2 * switch:] = 0.0
-    qd = np.concatenate([[0.0], np.cumsum(a[:-1]) * DT])
-    q = np.concatenate([[0.0], np.cumsum(qd[:-1] * DT + 0.5 * a[:-1] * DT * DT)])
-    return q, qd, a
+def _trapezoid():
+    """Accelerate at +u_ff, switch to -u_ff at tick 250, rest after 500 ticks."""
+    return switching_reference(dt=DT, u_ff=U_FF)
 
 
 def _late(q, qd, a, k0, n):
