@@ -45,6 +45,7 @@ ROWS = {
     "G16": "controller and observer run one certified pair of gains",
     "G17": "u_p is computed online as it was for identification (source, URDF, parameters)",
     "G18": "the inflation was calibrated on the sets the monitor checks",
+    "G19": "the gains that run are certified for the sets the running monitor checks",
 }
 
 

@@ -35,10 +35,12 @@ def defaults(node: str, workdir: Path, sim: bool = False) -> dict:
     (absolute paths) rather than into the current directory. With ``sim`` (the simulated
     arm) the observer and controller may run gains no model certifies (``allow_uncertified``,
     the initial gains that record the first identification data); on a real arm that must be
-    said explicitly in the parameter file, or a model given.
+    said explicitly in the parameter file, or a model given. With ``sim`` the controller also
+    times its stop without estimates on the simulation's ``/clock`` (``use_sim_time``,
+    :mod:`reachset_ros.nodes.estimate_watch`): the lockstep simulation waits for the loop.
     """
     pair = {"allow_uncertified": True} if sim else {}
-    return {"controller_node": {"wait_for_monitor": True, **pair},
+    return {"controller_node": {"wait_for_monitor": True, **pair, **({"use_sim_time": True} if sim else {})},
             "observer_node": dict(pair),
             "monitor_node": {"window_dir": str(workdir / "windows")},
             "synthesis_node": {"workdir": str(workdir / "synthesis")}}.get(node, {})

@@ -58,9 +58,9 @@ transition of either node.
 import time
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from reachset_msgs.msg import BrakeCommand, JointEstimate, JointReference, PlantInput
 from std_msgs.msg import Float64MultiArray
@@ -75,15 +75,13 @@ from .common import MONITOR_STARTED, TICK_QOS, declare_realtime_priority, desc, 
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
                           proposed_values,
                           validate_pair)
-from . import monitor_health
+from . import estimate_watch, monitor_health
 from .pair_gate import check_running_pair
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
 
-#: a safe stop with no estimate for this long (s, wall) engages every brake at once
-STOP_ESTIMATE_TIMEOUT = 0.1
 #: :meth:`ControllerNode.reference_at`: the newest earlier reference is older than ``reference_max_age``
 LOST = object()
 #: references kept for estimates still to come (2 s at 250 Hz): after a stall, a backlog of
@@ -145,7 +143,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.stop = None             # StopState of the stop in progress (None while tracking)
         self.last_estimate_stamp = 0  # stamp of the newest estimate received (ns)
-        self.last_estimate_wall = None  # wall time (monotonic) it arrived
+        self.last_estimate_time = None  # the arm's time it arrived (s, :meth:`arm_time`)
         self.stop_received = 0       # last_estimate_stamp when the active /safe_stop arrived (BrakeCommand)
         self.own_stop = None         # reason of a stop latched by this node (no usable estimate)
         self.last_q = None           # the last usable estimated position
@@ -167,8 +165,9 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         self.create_subscription(JointReference, "reference", self.on_reference, TICK_QOS)
         self.watch_monitor()         # /safe_stop, its liveliness, the deadline on the verdicts
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_timer(1.0, self.publish_diagnostics)
-        self.create_timer(0.002, self.on_wait_timer)
+        wall = Clock(clock_type=ClockType.STEADY_TIME)   # the timers run on the wall, also under use_sim_time
+        self.create_timer(1.0, self.publish_diagnostics, clock=wall)
+        self.create_timer(0.002, self.on_wait_timer, clock=wall)
         self.param_request = StagedRequest()
         add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
 
@@ -337,28 +336,13 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
             self.waiting = None
             self.on_estimate(est, late=True)
 
+    def arm_time(self):
+        """The arm's time (s), :func:`estimate_watch.arm_time`."""
+        return estimate_watch.arm_time(self)
+
     def brake_without_estimates(self):
-        """A safe stop is active but no estimate has come for ``STOP_ESTIMATE_TIMEOUT`` s (the
-        observer died or froze, or its data stopped): the braking law has nothing to act on,
-        so every holding brake engages now, on ``/brake_command`` (issue 17: a killed observer
-        left the arm on the drives' last command)."""
-        if not self.stop_active or self.last_estimate_wall is None:
-            return
-        if time.monotonic() - self.last_estimate_wall < STOP_ESTIMATE_TIMEOUT:
-            return
-        if self.stop is None:
-            self.stop = StopState(len(self.joints))
-        if bool(self.stop.engaged.all()):
-            return
-        stamp = self.last_command_stamp if self.last_command_stamp is not None else self.last_estimate_stamp
-        before = int(self.stop.engaged.sum())
-        self.stop.engage_all(stamp, f"no estimate for {STOP_ESTIMATE_TIMEOUT * 1e3:.0f} ms during the safe stop")
-        self.counters["brakes_engaged"] += len(self.joints) - before
-        self.get_logger().error(f"safe stop without estimates (none for {STOP_ESTIMATE_TIMEOUT * 1e3:.0f} ms): "
-                                "every holding brake engaged")
-        t = Time()
-        t.sec, t.nanosec = divmod(int(stamp), 1_000_000_000)
-        self.publish_brakes(t)
+        """Every brake when a safe stop has no estimates: :func:`estimate_watch.brake_without_estimates`."""
+        estimate_watch.brake_without_estimates(self)
 
     def on_safe_stop(self, msg):
         active = bool(msg.active)
@@ -514,7 +498,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
         if not late:
-            self.last_estimate_wall = time.monotonic()
+            self.last_estimate_time = self.arm_time() or self.last_estimate_time   # None: no /clock yet
             # the newest stamp (a sample whose stamp jumped back is not newer; a jump back by
             # more than 1 s is a new clock, as for the commands below)
             if stamp > self.last_estimate_stamp or stamp < self.last_estimate_stamp - 1_000_000_000:

@@ -18,6 +18,16 @@ one node after the other (every intermediate pair is checked here) and rolls bac
 refuses. A node that cannot read the other is refused (fail closed) unless its ``pair_node``
 is empty (a node run alone, its estimates or commands coming from elsewhere).
 
+The monitor checks the plant against its own model's sets, and the R*_e and R*_u of the gains
+that run hold for the sets they were certified on (row G19). So when a monitor runs
+(``monitor_node``, discovered in the graph), the pair that will run is also certified under the
+monitor's running model (its ``model_file``, read as the other node's), with this node's
+U_p and U_ff bound; a monitor that runs but cannot be read refuses the change (fail closed).
+With no monitor running (training, a node run alone) only the two nodes' models certify it.
+A change of model and gains for all three (the synthesis node: controller, observer, then
+monitor) is thus applied only when the new gains are certified under the monitor's current
+model too, so no moment runs gains the monitored sets do not certify.
+
 Start-up is not checked here (the other node may not be discovered yet): both nodes start from
 one parameter file (``reachset up``, the synthesis node's ``applied_gains.params.yaml``) and
 their start-up gate certifies it.
@@ -59,7 +69,10 @@ def declare_pair_parameters(node):
                                 "the controller for the observer); every gain or model change is certified for the "
                                 "pair that will run with that node's current gains, by both nodes' gates; '' for a "
                                 "node run alone (only its own copy of the pair is certified)", read_only=True))
-    if node.get_parameter("pair_node").value:
+    node.declare_parameter("monitor_node", "monitor_node",
+                           desc("the monitor whose running model (model_file) must also certify the pair that will "
+                                "run, when it runs (row G19); '' for none", read_only=True))
+    if node.get_parameter("pair_node").value or node.get_parameter("monitor_node").value:
         _client(node)           # made now: discovered by the time a change needs it
 
 
@@ -128,9 +141,40 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
         not be read.
     """
     from .gain_params import GAIN_CHANGE_PARAMS, gains_from, u_max_array
-    partner = node.get_parameter("pair_node").value
-    if not partner or not any(p.name in GAIN_CHANGE_PARAMS for p in params):
+    if not any(p.name in GAIN_CHANGE_PARAMS for p in params):
         return
+    partner = node.get_parameter("pair_node").value
+    own = ("this node's", model, u_max_array(values["u_max"], len(node.joints)), float(values["u_ff_bound"]),
+           bool(values["allow_uncertified"]))
+    gates, gains = [], gains_from(values, node.joints)
+    if partner:
+        gains, theirs, other_model = _partner_gate(node, partner, values, model)
+        # a certificate costs seconds (U_e,ff over the reference class): none is computed twice.
+        # The node's own gate (validate_pair) certified its copy already; the other node's gate
+        # with the same model and limits is the same gate
+        same_pair = gains == gains_from(values, node.joints)
+        same_gate = (other_model is model and theirs[3:] == own[3:] and np.array_equal(theirs[2], own[2]))
+        gates = ([] if same_pair else [own]) + ([] if same_gate else [theirs])
+    monitored = _monitor_gate(node, values, own)
+    if monitored is not None:
+        gates.append(monitored)
+    half = "observer" if role(node) == "controller" else "controller"
+    for who, m, u_max, u_ff, allow in gates:
+        try:
+            certify_pair(gains, m, u_max, u_ff, node.dt, allow, u_e_ff_for=u_e_ff_for)
+        except ReachsetError as e:
+            pair = f"with {partner}'s current {half} gains " if partner else ""
+            why = f"the pair that would run {pair}is refused by {who} gate: {first_line(e)}"
+            if who.startswith("the monitor"):       # G19, beside the row the gate protects
+                raise guarantees.refused("G19", why) from None
+            # the gate's refusal names the row it protects (G4, G7, G11); any other is G16's
+            raise (ReachsetError(why) if "[guarantee " in why else guarantees.refused("G16", why)) from None
+
+
+def _partner_gate(node, partner, values, model):
+    """``(gains of the pair that will run, the other node's gate, its model)``; refuses (G16)
+    when the other node is not running or cannot be read."""
+    from .gain_params import gains_from
     timeout = float(defaults.get("nodes.pair.timeout"))
     client = _client(node)
     if partner.lstrip("/") not in [n for n, _ in client.get_node_names_and_namespaces()]:
@@ -141,10 +185,6 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
         raise guarantees.refused("G16", f"the pair that will run cannot be certified: {why} (pair_node "
                                         f"{partner!r}; '' for a node run alone)")
     run, joints = running_values(node, values, other)
-    gains = gains_from(run, node.joints)
-    half = "observer" if role(node) == "controller" else "controller"
-    own = ("this node's", model, u_max_array(values["u_max"], len(node.joints)), float(values["u_ff_bound"]),
-           bool(values["allow_uncertified"]))
     path = str(other["model_file"] or "")
     own_path = str(values.get("model_file") or "")
     try:
@@ -153,20 +193,31 @@ def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gai
         raise ReachsetError(f"{partner}'s model_file {path}: {e}") from None
     theirs = (f"{partner}'s", other_model, np.asarray(_per_joint(other["u_max"], joints, node.joints, "u_max", partner)),
               float(other["u_ff_bound"]), bool(other["allow_uncertified"]))
-    # a certificate costs seconds (U_e,ff over the reference class): none is computed twice.
-    # The node's own gate (validate_pair) certified its copy already; the other node's gate
-    # with the same model and limits is the same gate
-    same_pair = gains == gains_from(values, node.joints)
-    same_gate = (other_model is model and theirs[3:] == own[3:] and np.array_equal(theirs[2], own[2]))
-    gates = ([] if same_pair else [own]) + ([] if same_gate else [theirs])
-    for who, m, u_max, u_ff, allow in gates:
-        try:
-            certify_pair(gains, m, u_max, u_ff, node.dt, allow, u_e_ff_for=u_e_ff_for)
-        except ReachsetError as e:
-            why = (f"the pair that would run with {partner}'s current {half} gains is refused by {who} gate: "
-                   f"{first_line(e)}")
-            # the gate's refusal names the row it protects (G4, G7, G11); any other is G16's
-            raise (ReachsetError(why) if "[guarantee " in why else guarantees.refused("G16", why)) from None
+    return gains_from(run, node.joints), theirs, other_model
+
+
+def _monitor_gate(node, values, own):
+    """The gate of the monitor's running model (row G19): ``(who, model, u_max, u_ff, allow)``
+    with this node's limits, or ``None`` when no monitor runs or it runs this node's proposed
+    model (certified by this node's gate already). A running monitor that cannot be read, or
+    whose model cannot be loaded, refuses the change (fail closed)."""
+    monitor = node.get_parameter("monitor_node").value
+    if not monitor:
+        return None
+    client = _client(node)
+    if monitor.lstrip("/") not in [n for n, _ in client.get_node_names_and_namespaces()]:
+        return None
+    got, why = get_remote_parameters(client, monitor, ["model_file"], timeout=float(defaults.get("nodes.pair.timeout")))
+    if got is None:
+        raise guarantees.refused("G19", f"the monitored sets cannot be read: {why} (monitor_node {monitor!r}; '' "
+                                        "for none)")
+    path = str(got["model_file"] or "")
+    if not path or path == str(values.get("model_file") or ""):
+        return None
+    try:
+        return (f"the monitor {monitor}'s model", mdl.load(path), own[2], own[3], own[4])
+    except ReachsetError as e:
+        raise guarantees.refused("G19", f"{monitor}'s model_file {path}: {first_line(e)}") from None
 
 
 def set_pair(node, changes, *, timeout=10.0):

@@ -201,7 +201,8 @@ def suite_parameters(*, workdir, seed, realtime_priority, monitor_lockstep_ticks
         "observer_node": {**common, **INITIAL_GAINS},
         # the training runs unmonitored (no model yet): the controller waits for the monitor
         # only once one runs (set when it starts, for a restarted controller)
-        "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": False,
+        # use_sim_time: the stop without estimates is timed on the lockstep simulation's clock
+        "controller_node": {**common, **INITIAL_GAINS, "wait_for_monitor": False, "use_sim_time": True,
                             "robot_params": str(default_nominal_path())},
         "monitor_node": {"window_dir": str(workdir / "windows")},
         # the monitor's /joint_states pass through the relay: the link events drop or delay them

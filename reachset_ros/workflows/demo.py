@@ -103,7 +103,8 @@ class _Story:
         cmd.start("sim_node", {"seed": seed, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT})
         cmd.start("reference_node", {"seed": seed})
         cmd.start("observer_node", {**common, **initial})
-        cmd.start("controller_node", {**common, **initial, "wait_for_monitor": False,
+        # use_sim_time: the stop without estimates is timed on the lockstep simulation's clock
+        cmd.start("controller_node", {**common, **initial, "wait_for_monitor": False, "use_sim_time": True,
                                       "robot_params": str(default_nominal_path())})
         extra, self.out["search_box"] = synthesis_arguments()
         # the gains are synthesised for the sets the monitor will check (inflated by 1 + inflation),

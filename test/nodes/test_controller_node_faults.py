@@ -38,7 +38,8 @@ def wait_exit(proc, timeout):
     return True
 
 
-def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2, verdicts=None):
+def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, stop_category=2, verdicts=None,
+                     extra=None):
     """A controller_node for these tests: category 2 by default (the braking law's output is
     what they check; the holding brakes of category 1 are tested in test_stopping.py and
     test_nodes.py); ``verdicts``: its deadline on the monitor's verdicts (default
@@ -50,7 +51,7 @@ def start_controller(d, model=None, u_max=(26.0, 26.0), wait_for_monitor=False, 
               **(NO_VERDICTS if verdicts is None else verdicts)}
     if model is not None:
         params["model_file"] = str(model)
-    return processes.start("controller_node", params, d)
+    return processes.start("controller_node", {**params, **(extra or {})}, d)
 
 
 def tracking_law(omega, zeta, q=Q_TEST, qd=(0.0, 0.0)):
@@ -284,6 +285,67 @@ class TestStopWithoutEstimates:
             time.sleep(0.2)
             bus.listener.destroy_subscription(bsub)
             bus.caller.destroy_publisher(stop_pub)
+
+
+class TestStopWithoutEstimatesOnTheArmsClock:
+    def test_a_pause_of_the_loop_is_no_pause_of_a_lockstep_arm(self, bus, tmp_path):
+        """The gap without estimates that brakes a stopped arm is timed in the arm's time: under
+        ``use_sim_time`` the simulation's /clock (nodes/estimate_watch.py). A lockstep
+        simulation waits for the loop, so an observer starved of CPU for more than 100 ms of
+        wall time while /clock stands still is no gap; 150 ms of /clock without estimates is.
+        Before, the wall timed it: the demo's start-up (the monitor holding the arm in its
+        not-ready stop while its process started) braked the held arm, which then left the
+        modelled plant, and the monitor latched a violation (2026-11-26). The suite's simulated
+        bring-ups (``reachset up --sim``, the demo, the campaign) run it with ``use_sim_time``."""
+        from reachset_msgs.msg import BrakeCommand
+        from rosgraph_msgs.msg import Clock
+        from reachset_ros.nodes.common import CLOCK_QOS
+        from reachset_ros.nodes import bringup
+        # the parameters `reachset up --sim` gives it (the demo's and the campaign's are the same)
+        proc = start_controller(tmp_path, write_model(tmp_path / "m.yaml"),
+                                extra=bringup.defaults("controller_node", tmp_path, sim=True))
+        brakes = []
+        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
+        clock_pub = bus.caller.create_publisher(Clock, "/clock", CLOCK_QOS)
+
+        def tick_clock(t):
+            c = Clock()
+            to_stamp(c.clock, t)
+            clock_pub.publish(c)
+
+        try:
+            assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1
+                            and clock_pub.get_subscription_count() >= 1
+                            and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
+            ts = stamps(2)
+            stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no stop"))
+            for _ in range(10):     # /clock, as a simulation publishes it every tick
+                tick_clock(ts[0])
+                time.sleep(0.05)
+            assert len(drive(bus, ts)) == 2
+            tick_clock(ts[-1])
+            stop = SafeStop(active=True, kind="not_ready", reason="not ready: test")
+            to_stamp(stop.header.stamp, ts[-1])
+            stop_pub.publish(stop)
+            # the loop pauses (no estimate) for 1 s of wall time; the lockstep arm's clock stands still
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                tick_clock(ts[-1] + 4_000_000)
+                time.sleep(0.05)
+            assert not any(all(b.engage) for b in list(brakes)), list(brakes)[-3:]
+            # 150 ms of the arm's time without an estimate: every brake
+            for i in range(2, 40):
+                tick_clock(ts[-1] + i * 4_000_000)
+                time.sleep(0.01)
+            assert bus.wait(lambda: any(all(b.engage) for b in list(brakes)), 15), list(brakes)[-3:]
+            assert "safe stop without estimates" in proc.log.read_text()
+        finally:
+            processes.stop([proc])
+            bus.listener.destroy_subscription(bsub)
+            bus.caller.destroy_publisher(stop_pub)
+            bus.caller.destroy_publisher(clock_pub)
 
 
 class TestSimulatorReportsStaleCommands:

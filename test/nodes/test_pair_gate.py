@@ -126,3 +126,34 @@ def test_a_change_of_both_halves_is_applied_to_both_nodes_or_to_neither(ros, pai
     for node in ("controller_node", "observer_node"):
         assert get_remote_parameters(ros, node, names)[0] == new
     assert all(p.alive() for p in procs)
+
+
+def test_a_change_is_certified_under_the_running_monitors_model(ros, pair, tmp_path):
+    """Row G19 (issue 34.6): the monitor checks its own model's sets, so the pair that will run
+    is certified under the running monitor's model too. With a monitor whose sets are twice the
+    nodes' (W (0.04, 4.0)), omega 26 passes both nodes' gates but leaves U_p under the
+    monitored sets: refused naming the monitor and the row; omega 22 is certified under both
+    and accepted. Before, the monitor's model was never consulted."""
+    procs, model = pair
+    wide = tmp_path / "monitor_model.yaml"
+    g = Gains(omega=20.0, zeta=1.0, h1=15.0, h2=30.0)
+    js = mdl.JointSets((0.04, 4.0), (3.49e-5,), (0.0,) * 5, (0.0,), 0, 125,
+                       gains={**g.model_dict(), "u_max": 26.0, "u_ff": 2.0}, extra={})
+    mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 125,
+                                  {"arm_1_joint": js}, 0.0, input_source=mdl.PLANT_INPUT), wide)
+    assert _gate(model, omega=26.0) == "" and "R*_u" in _gate(mdl.load(wide), omega=26.0)
+    assert _gate(mdl.load(wide), omega=22.0) == ""
+    mon = processes.start("monitor_node", {"joints": JOINTS, "model_file": str(wide),
+                                           "window_dir": str(tmp_path / "windows")}, tmp_path)
+    try:
+        got, why = get_remote_parameters(ros, "monitor_node", ["model_file"], timeout=60.0)
+        assert got == {"model_file": str(wide)}, f"{why}: {mon.log.read_text()[-1500:]}"
+        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [26.0]})
+        assert not ok, "omega 26 accepted although the monitored sets leave U_p with it"
+        assert "the monitor monitor_node's model" in why and "[guarantee G19" in why and "R*_u" in why, why
+        got, _ = get_remote_parameters(ros, "controller_node", ["omega"])
+        assert got == {"omega": [20.0]}
+        ok, why = set_remote_parameters(ros, "controller_node", {"omega": [22.0]})
+        assert ok, why
+    finally:
+        processes.stop([mon])
