@@ -220,6 +220,37 @@ def _monitor_gate(node, values, own):
         raise guarantees.refused("G19", f"{monitor}'s model_file {path}: {first_line(e)}") from None
 
 
+def certify_running_pair_under(client, model, *, controller="controller_node", observer="observer_node",
+                               timeout=10.0, u_e_ff_for=u_e_ff_for_gains):
+    """Whether the pair running now is certified under ``model`` (row G19 for a monitor about
+    to check ``model``'s sets while these gains still run).
+
+    The controller's half is read from ``controller``, the observer's from ``observer``
+    (their current parameters, :data:`READ`), and certified with the controller's U_p, U_ff
+    bound and ``allow_uncertified`` (:func:`~reachset_ros.systems.gains.certify_pair`).
+
+    Returns
+    -------
+    str
+        Empty when certified; else one line: the gate's refusal or the node that could not be read.
+    """
+    from .gain_params import gains_from, u_max_array
+    ctl, why = get_remote_parameters(client, controller, READ, timeout=timeout)
+    obs, why2 = (None, "") if ctl is None else get_remote_parameters(client, observer, READ, timeout=timeout)
+    if ctl is None or obs is None:
+        return why or why2
+    joints = [j for j in ctl["joints"] if j]
+    try:
+        run = {k: (ctl[k] if k in OWN_KEYS["controller"] else str(obs[k]) if k in TYPE_KEYS
+                   else _per_joint(obs[k], [j for j in obs["joints"] if j], joints, k, observer))
+               for k in (*TYPE_KEYS, *GAIN_KEYS)}
+        certify_pair(gains_from(run, joints), model, u_max_array(ctl["u_max"], len(joints)), float(ctl["u_ff_bound"]),
+                     float(model.plant_spec.get("dt", 0.004)), bool(ctl["allow_uncertified"]), u_e_ff_for=u_e_ff_for)
+    except (ReachsetError, ValueError, IndexError) as e:
+        return first_line(e)
+    return ""
+
+
 def set_pair(node, changes, *, timeout=10.0):
     """Set the parameters ``changes`` (``{target: {name: value}}``, e.g. the same gains for
     ``observer_node`` and ``controller_node``) on the nodes of a pair, all or none.

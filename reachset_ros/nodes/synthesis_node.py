@@ -14,8 +14,10 @@ applies the gains and the model through the other nodes' parameter services:
 ``controller_node`` first (it re-checks stability and R_u ⊆ U_p and may refuse), then
 ``observer_node``, then ``monitor_node`` (each of the first two certifies the pair that will
 run with the other's running half, :mod:`~reachset_ros.nodes.pair_gate`; when the controller
-refuses that intermediate pair, the observer is tried first). Nothing is applied from a failed or
-non-conformant result.
+refuses that intermediate pair, the observer is tried first). Both also certify it under the
+running monitor's model (row G19): when the pair running now is certified under the new model,
+``monitor_node`` is set first instead, so the new gains never run under sets they are not
+certified for. Nothing is applied from a failed or non-conformant result.
 
 Gains are applied by joint name: the controller and observer read their per-joint arrays
 in the order of their own ``joints`` parameter (an array of length 1 is one value for all
@@ -49,6 +51,7 @@ from ..atomic import write_yaml
 from ..conformance import model as mdl
 from ..errors import ReachsetError
 from ..systems.gains import GAIN_KEYS, TYPE_KEYS, Gains, certify
+from .pair_gate import certify_running_pair_under
 from .common import SAFE_STOP_QOS, desc, get_remote_parameters, set_remote_parameters, spin_node
 
 #: the worker process: a program run by module name (the node does not import the workflows)
@@ -57,6 +60,8 @@ WORKER = "reachset_ros.commands._synthesis_worker"
 #: ``controller`` types (the observer node has no use for the feedback gains omega, zeta)
 #: both nodes get the whole pair (observer and controller gains), U_p and the model: each
 #: certifies the pair it will be part of (gain_params.validate_pair, systems.gains.certify_pair)
+#: the words of a roll-back that left a target with the new values (:meth:`SynthesisNode.roll_back`)
+ROLLBACK_FAILED = "ROLLBACK FAILED"
 TARGET_KEYS = {"controller_node": GAIN_KEYS + ("u_max",),
                "observer_node": GAIN_KEYS + ("u_max",)}
 #: the loop structure, one string per node (GAIN_KEYS and TYPE_KEYS: defaults ``gains.keys``,
@@ -187,17 +192,25 @@ def target_values(target, current, synthesis, keys):
     return values, ""
 
 
-def apply_orders(plan):
+def apply_orders(plan, monitor_first=False):
     """The orders in which :meth:`SynthesisNode.apply` tries to set ``plan``'s targets: as
     planned (controller, observer, monitor), then, when the controller refused first, with the
     observer first. Each of the two certifies the pair that will run after its change with the
-    other's running half (:mod:`~reachset_ros.nodes.pair_gate`, issue 34.6): of the two
-    intermediate pairs (new controller with the old observer, or the reverse) one may be
-    certified when the other is not."""
-    yield plan
+    other's running half and under the running monitor's model (:mod:`~reachset_ros.nodes.pair_gate`,
+    issue 34.6, rows G16 and G19): of the two intermediate pairs (new controller with the old
+    observer, or the reverse) one may be certified when the other is not. With
+    ``monitor_first`` (the pair running now is certified under the new model, checked by the
+    caller) the same two orders follow with the monitor set first: the new gains need not be
+    certified under the monitor's old model then."""
     names = [p[0] for p in plan]
+    orders = [plan]
     if names[:2] == ["controller_node", "observer_node"]:
-        yield [plan[1], plan[0], *plan[2:]]
+        orders.append([plan[1], plan[0], *plan[2:]])
+    if monitor_first and names[-1] == "monitor_node":
+        # every moment then runs gains certified under the monitored sets: the running pair
+        # under the new model (checked by the caller), then each new half under it (the gate)
+        orders = [[order[-1], *order[:-1]] for order in orders]
+    yield from orders
 
 
 class SynthesisNode(Node):
@@ -403,7 +416,10 @@ class SynthesisNode(Node):
         own ``model_file`` is set only when every target accepted. The controller and the
         observer each certify the pair that will run after their change with the other's
         running half (:mod:`~reachset_ros.nodes.pair_gate`); when the controller refuses first
-        (nothing applied yet), the observer is set first instead (:func:`apply_orders`).
+        (nothing applied yet), the observer is set first instead (:func:`apply_orders`). Both
+        also certify it under the running monitor's model (row G19), so the monitor is set
+        first when the pair running now is certified under the new model
+        (:func:`~reachset_ros.nodes.pair_gate.certify_running_pair_under`), last otherwise.
         """
         why = certify_synthesis(data, model_file)
         if why:
@@ -434,15 +450,20 @@ class SynthesisNode(Node):
                 return False, why
             plan.append(("monitor_node", {"model_file": model_file}, current))
         refusals = []
-        for order in apply_orders(plan):
+        monitor_first = False
+        if "monitor_node" in targets and {"controller_node", "observer_node"} <= set(targets):
+            # the monitor may switch first only when the pair running now is certified under
+            # the new model (row G19: no moment runs gains the monitored sets do not certify)
+            monitor_first = not certify_running_pair_under(self.client_node, mdl.load(model_file))
+        for order in apply_orders(plan, monitor_first):
             ok, why, applied_some = self.set_in_order(order)
             if ok:
                 break
-            refusals.append(why)
-            if applied_some:        # set back (or not) already: no second order from there
+            refusals.append(f"{' -> '.join(n for n, _, _ in order)}: {why}")
+            if applied_some and ROLLBACK_FAILED in why:   # a target keeps the new values: no second order from there
                 break
         if not ok:
-            return False, "; with the observer first: ".join(refusals)
+            return False, "; then ".join(refusals)
         self.set_parameters([Parameter("model_file", value=model_file)])
         self.write_applied(plan)
         return True, ""
@@ -503,7 +524,7 @@ class SynthesisNode(Node):
         if not failed:
             return f"rolled back {', '.join(back)} to the previous values"
         return ((f"rolled back {', '.join(back)}; " if back else "")
-                + f"ROLLBACK FAILED for {', '.join(failed)}, which keeps the new values")
+                + f"{ROLLBACK_FAILED} for {', '.join(failed)}, which keeps the new values")
 
 
 def main(args=None):
