@@ -35,7 +35,8 @@ MODEL_NODES = ("observer_node", "controller_node", "monitor_node", "synthesis_no
 def defaults(node, workdir, sim=False):
     """Parameters under the parameter file (as ``reachset up``'s ``bringup.defaults``)."""
     pair = {"allow_uncertified": True} if sim else {}
-    out = {"controller_node": {"wait_for_monitor": True, **pair}, "observer_node": dict(pair)}.get(node, {})
+    clock = {"use_sim_time": True} if sim else {}     # the stop without estimates on the simulation's clock
+    out = {"controller_node": {"wait_for_monitor": True, **pair, **clock}, "observer_node": dict(pair)}.get(node, {})
     if workdir:
         out = {**out, **{"monitor_node": {"window_dir": os.path.join(workdir, "windows")},
                          "synthesis_node": {"workdir": os.path.join(workdir, "synthesis")}}.get(node, {})}

@@ -4,6 +4,10 @@ Options beyond the paper's separate approach:
 
 - ``--cost quadratic``: minimise ||G'_W diag a_W||_F^2 + ||G'_V diag a_V||_F^2 under the same
   Theorem-1 constraints (OSQP through cvxpy, then made sound in floating point).
+- ``--cost detection``: minimise the radii of the reachable output sets R_a[k] summed over
+  k = 0..k* (the sets the monitor checks) under the same constraints (HiGHS), rather than
+  ||W|| + ||V||, which may put all of W on the generator whose output set grows fastest
+  (issue 35.2; measured in docs/performance.md).
 - ``--method corollary1``: the conservative state-based variant (paper Corollary 1); it
   needs an estimator consistent with the model and fails with a message naming the test
   case and state direction otherwise (always on noisy LWA-4P data with ``fd``).
@@ -33,6 +37,7 @@ before k* (false: a longer horizon may still change them).
 import sys
 from dataclasses import replace
 
+from .. import defaults
 from ..conformance.estimators import ESTIMATORS
 from ..workflows.identify import DEFAULT_GRID, IdentifyOptions, check_options, identify
 from . import emit
@@ -63,9 +68,10 @@ def add_arguments(p):
     p.add_argument("--alpha-lower", type=float, nargs="+", metavar="F",
                    help="lower bounds on [alpha_W..., alpha_V...] (e.g. encoder resolution)")
     p.add_argument("--dt", type=float, default=0.004, help="sampling time, s")
-    p.add_argument("--cost", default="linear", choices=["linear", "quadratic"],
+    p.add_argument("--cost", default=defaults.get("identify.cost"), choices=["linear", "quadratic", "detection"],
                    help="linear: ||W||+||V|| (paper, HiGHS); quadratic: squared Frobenius norm of the "
-                        "scaled generators (OSQP)")
+                        "scaled generators (OSQP); detection: the radii of the reachable output sets summed "
+                        "over the horizon (HiGHS; the monitor's detection power, docs/performance.md); default %(default)s")
     p.add_argument("--method", default="theorem1", choices=["theorem1", "corollary1"],
                    help="Theorem 1 (output-based, default) or Corollary 1 (state-based, conservative)")
     p.add_argument("--validate", nargs="+", metavar="VBAG",

@@ -92,6 +92,22 @@ def set_norm_cost(plant, weights=None):
     return c
 
 
+def detection_cost(plant, thm, window=None):
+    """Cost vector over alpha = [alpha_W, alpha_V] aimed at detection power (issue 35.2): the
+    radii of the reachable output sets R_a[k] of Theorem 1 (eq. 13) summed over k = 0..window
+    (default: the horizon of ``thm``), i.e. the alpha columns of ``D_k`` summed over the
+    half-spaces' rows and steps. A fault is detected once the deviation it causes leaves
+    R_a[k]; min ||W|| + ||V|| weighs every generator by its own size only and may leave large
+    output sets (e.g. all of W on the generator whose set grows fastest); this weighs each
+    generator by how much it widens the sets the monitor checks."""
+    K = len(thm.Dp) - 1 if window is None else min(int(window), len(thm.Dp) - 1)
+    n, ny = plant.A.shape[0], plant.C.shape[0]
+    c = np.zeros(plant.Gw.shape[1] + plant.Gv.shape[1])
+    for k in range(K + 1):
+        c += thm.Dp[k][:, n + ny:].sum(axis=0) + thm.Dm[k][:, n + ny:].sum(axis=0)
+    return c
+
+
 def make_sound(plant, thm, devs, c_w, c_v, alpha_w, alpha_v):
     """Inflate alpha_V (else alpha_W) until every Theorem-1 inequality holds in floating point.
 
@@ -131,11 +147,13 @@ def make_sound(plant, thm, devs, c_w, c_v, alpha_w, alpha_v):
     raise InfeasibleError("conformance could not be restored after 60 inflation steps")
 
 
-def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower=None, horizon=None):
+def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower=None, horizon=None,
+                  cost_vector=None):
     """Reachset-conformant identification as a linear programme (HiGHS).
 
     Minimises ||W|| + ||V|| (the paper's separate approach, Sec. IV-B; optional per-alpha
-    ``weights``) subject to Theorem 1 for k = 0..horizon, alpha >= ``alpha_lower``.
+    ``weights``), or ``cost_vector @ alpha`` when given (e.g. :func:`detection_cost`),
+    subject to Theorem 1 for k = 0..horizon, alpha >= ``alpha_lower``.
 
     Returns
     -------
@@ -143,7 +161,8 @@ def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower
     """
     A_ub, b_ub, bounds, T = identification_constraints(plant, thm, devs, horizon, centers)
     pw, pv, ny = plant.Gw.shape[1], plant.Gv.shape[1], plant.C.shape[0]
-    c = np.concatenate([np.zeros(pw + ny), set_norm_cost(plant, weights)])
+    cvec = set_norm_cost(plant, weights) if cost_vector is None else np.asarray(cost_vector, dtype=np.float64)
+    c = np.concatenate([np.zeros(pw + ny), cvec])
     if alpha_lower is not None:
         lo = np.broadcast_to(np.asarray(alpha_lower, float), (pw + pv,))
         for i in range(pw + pv):
@@ -157,7 +176,7 @@ def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower
     c_w, c_v = xi[:n], xi[n:n + ny]
     aw, av = np.maximum(z[pw + ny:pw + ny + pw], 0.0), np.maximum(z[pw + ny + pw:], 0.0)
     aw, av, bump = make_sound(plant, thm, devs, c_w, c_v, aw, av)
-    cost = float(set_norm_cost(plant, weights) @ np.concatenate([aw, av]))
+    cost = float(cvec @ np.concatenate([aw, av]))
     return IdentifiedSets(c_w, c_v, aw, av, cost, bump)
 
 
