@@ -12,7 +12,9 @@ For each class (acceleration rad/s^2, torque N m, sensor bias rad) and joint, th
 bisected (relative width ``--rel-tol``) for the smallest one stopped within 100 ms in every
 seed of ``--seeds``; beside it the latency onset -> stop stamp (the first non-conformant
 measurement) at that magnitude, the detection limit from the simulator's own disturbances
-(:func:`reachset_ros.sim.detectability.limits`) and the ratio. Frozen sensors and NaN samples
+(:func:`reachset_ros.sim.detectability.limits`), the ratio, and the sets' own limit (the
+smallest fault the model's sets stop within 100 ms with no disturbance at all,
+:func:`reachset_ros.sim.detectability.sets_limit`: what the sets' size alone gives away). Frozen sensors and NaN samples
 (no magnitude): one case per joint and seed, their latency. The other side: fault-free runs
 of ``--fault-free`` s per seed, and the fault-free stretch before every case, must not stop.
 
@@ -83,6 +85,7 @@ def one_row(model, su, *, fault, joint, j, seeds, rel_tol, lim):
     r = dt.minimum_detectable(model, su, fault=fault, joint=joint, seeds=seeds, hi=START[fault](j), rel_tol=rel_tol)
     r["limit"] = lim[fault][joint]
     r["ratio"] = None if r["hi"] is None else r["hi"] / r["limit"]
+    r["sets_limit"] = dt.sets_limit(model, joint, fault=fault, within_s=su.within_s)
     r["evaluations"] = len(r["tried"])
     r["wall_s"] = time.perf_counter() - t
     return r
@@ -94,12 +97,12 @@ def fmt(x, digits=3):
 
 def table(rows, other, free, model, seeds):
     out = [f"model inflation {model.inflation:g}; seeds {list(seeds)}; stopped within 100 ms of the onset in every seed",
-           "", "| fault | joint | minimum detectable (bracket) | limit | ratio | onset -> stop, ms (per seed) |",
-           "|---|---|---|---|---|---|"]
+           "", "| fault | joint | minimum detectable (bracket) | limit | ratio | the sets' own limit | "
+           "onset -> stop, ms (per seed) |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         lat = "-" if r["latency_ms"] is None else ", ".join(f"{x:.0f}" for x in r["latency_ms"])
         out.append(f"| {r['fault']} ({UNIT[r['fault']]}) | {r['joint']} | {fmt(r['hi'])} ({fmt(r['lo'])}-{fmt(r['hi'])})"
-                   f" | {fmt(r['limit'])} | {fmt(r['ratio'])} | {lat} |")
+                   f" | {fmt(r['limit'])} | {fmt(r['ratio'])} | {fmt(r['sets_limit'])} | {lat} |")
     if other:
         out += ["", "| fault (no magnitude) | joint | stopped within 100 ms | onset -> stop, ms (per seed) | by |",
                 "|---|---|---|---|---|"]

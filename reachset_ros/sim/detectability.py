@@ -55,7 +55,8 @@ from . import simulator as simm
 from .recordings import recordings_series, simulate_arm_recordings
 
 __all__ = ["FAULT_CLASSES", "WITHIN_S", "Setup", "Case", "Bracket", "make_fault", "simulate", "monitor_stops",
-           "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "fault_free",
+           "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "sets_limit",
+           "fault_free",
            "identify_model"]
 
 #: the fault classes with a magnitude, per joint (the simulator's faults; units rad/s^2, N m, rad)
@@ -320,6 +321,38 @@ def limits(setup: Setup, *, seeds, seconds=None):
     vb = _noise_bound(cfg, n)
     return {"acceleration": dict(zip(names, w2max.tolist())), "torque": torque,
             "bias": {nm: float(2 * vb[j]) for j, nm in enumerate(names)}, "w2_max": dict(zip(names, w2max.tolist()))}
+
+
+def sets_limit(model, joint, *, fault="acceleration", within_s=WITHIN_S):
+    """The smallest fault the model's own sets stop within ``within_s`` at best, or None.
+
+    Theorem 1's bound ``d+_k`` (:meth:`~reachset_ros.conformance.theorem1.Theorem1.offsets`) of
+    a test case started just before the fault, against the fault's own effect on the output at
+    step k with no disturbance at all: ``r_k = C sum_{m<k} A^m g`` for a constant acceleration
+    (``g`` the plant's acceleration generator, the last column of ``G'_W``), ``r_k = 1`` for a
+    bias. ``min_k d+_k / r_k`` over the steps within ``within_s`` of the first changed
+    measurement: what the sets' size alone gives away, whatever the disturbances do (a torque
+    depends on the configuration: None)."""
+    from ..conformance.monitor import MonitorModel
+    if fault not in ("acceleration", "bias"):
+        return None
+    dp = MonitorModel.from_model(model, joint).dp_vec
+    plant = model.plant
+    K = len(dp) - 1
+    if fault == "bias":
+        r = np.r_[0.0, np.ones(K)]
+    else:
+        g, A, C = np.asarray(plant.Gw)[:, -1], np.asarray(plant.A), np.asarray(plant.C)
+        x, acc, r = np.zeros(len(g)), np.zeros(len(g)), [0.0]
+        for _ in range(K):
+            acc = A @ acc + g                     # sum_{m<k} A^m g, one step further
+            x = acc
+            r.append(float((C @ x)[0]))
+        r = np.asarray(r)
+    first = int(np.flatnonzero(r > 0)[0])
+    last = min(K, first + int(round(within_s / plant.dt)))
+    k = np.arange(first, last + 1)
+    return float(np.min(dp[k] / r[k]))
 
 
 def fault_free(model, setup: Setup, *, seeds, seconds):

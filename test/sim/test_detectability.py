@@ -90,3 +90,17 @@ def test_limits_per_class():
     assert lim["bias"][names[0]] == pytest.approx(2 * (3 * cfg.position_noise[0] + 0.5 * cfg.quantization))
     # a torque at the limit accelerates no joint beyond its w2 bound
     assert all(lim["torque"][n] > 0 for n in names)
+
+
+def test_the_sets_own_limit_scales_with_the_inflation(model):
+    """Theorem 1's bound over the fault's noise-free effect: zero-centred sets scale with
+    (1 + inflation), and the acceleration's first effect is dt^2/2 at step 2 (one sample of
+    input and one of output delay)."""
+    from dataclasses import replace
+    a = dt.sets_limit(model, "arm_2_joint")                        # inflation 2
+    b = dt.sets_limit(replace(model, inflation=0.0), "arm_2_joint")
+    assert a == pytest.approx(3.0 * b) and b > 0
+    assert dt.sets_limit(model, "arm_2_joint", fault="bias") > 0
+    assert dt.sets_limit(model, "arm_2_joint", fault="torque") is None
+    # a longer window can only lower it
+    assert dt.sets_limit(model, "arm_2_joint", within_s=0.2) <= a
