@@ -28,8 +28,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from reachset_ros.conformance import model as mdl  # noqa: E402
@@ -95,7 +93,7 @@ def fmt(x, digits=3):
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-def table(rows, other, free, model, seeds):
+def table(rows, other, free, model, seeds, onset_s):
     out = [f"model inflation {model.inflation:g}; seeds {list(seeds)}; stopped within 100 ms of the onset in every seed",
            "", "| fault | joint | minimum detectable (bracket) | limit | ratio | the sets' own limit | "
            "onset -> stop, ms (per seed) |", "|---|---|---|---|---|---|---|"]
@@ -110,7 +108,7 @@ def table(rows, other, free, model, seeds):
             out.append(f"| {o['fault']} | {o['joint']} | {o['within']}/{len(o['latency_ms'])} | "
                        + ", ".join(fmt(x, 3) for x in o["latency_ms"]) + f" | {', '.join(sorted(set(o['kinds'])))} |")
     out += ["", f"fault-free: {free['runs']} runs, {free['seconds']:.0f} simulated s: {len(free['stops'])} stop ticks; "
-                f"in the {su.onset_s:g} s before the onset of each of the {free['cases']} cases run: "
+                f"in the {onset_s:g} s before the onset of each of the {free['cases']} cases run: "
                 f"{free['before_onset']} stop ticks"]
     return "\n".join(out)
 
@@ -156,7 +154,7 @@ def main(argv=None):
     cases = sum(r["cases"] for r in rows) + len(other) * len(a.seeds)
     free = dt.fault_free(model, su, seeds=a.seeds, seconds=a.fault_free)
     free["before_onset"], free["cases"] = before, cases
-    print(table(rows, other, free, model, a.seeds))
+    print(table(rows, other, free, model, a.seeds, su.onset_s))
     if a.json:
         Path(a.json).write_text(json.dumps({"model": str(path), "inflation": model.inflation, "seeds": a.seeds,
                                             "limits": lim, "rows": rows, "other": other, "fault_free": free},
