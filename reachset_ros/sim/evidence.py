@@ -179,7 +179,8 @@ def evidence(outcomes, *, info=None, apparatus_stops=(), stop_category=None, con
         total["max"] + 1e3 * stops["rest_s"]["max"])
     return {
         "confidence": confidence,
-        "campaign": {k: info[k] for k in ("seed", "model", "inflation", "calibrated_inflation", "workdir") if k in info},
+        "campaign": {k: info[k] for k in ("seed", "model", "inflation", "calibrated_inflation", "workdir")
+                     if k in info},
         "score": {k: score[k] for k in ("events", "faults_injected", "stops", "missed_stops", "false_stops",
                                         "fault_free_minutes")},
         "detection": detection(outcomes, confidence),
@@ -244,8 +245,8 @@ def page(ev):
         f"separation-distance equivalent: S = K T, K = {iso['K_mm_per_s']:.0f} mm/s, i.e. "
         f"{iso['mm_per_ms']:g} mm per ms (a conversion).</p>",
         _table(["segment", "n", "p50", "p90", "p99", "max", "p99 as mm", "max as mm"],
-               [_q_row("fault → stop stamp", r["detect_ms"], True), _q_row("stop stamp → brake", r["brake_ms"], True),
-                _q_row("fault → brake", r["total_ms"], True)]),
+               [_q_row("fault → stop stamp", r["detect_ms"], True),
+                _q_row("stop stamp → brake", r["brake_ms"], True), _q_row("fault → brake", r["total_ms"], True)]),
         f"<p>Not measured to the brake (the drives' watchdog brakes): {html.escape(', '.join(r['unmeasured']) or '-')}."
         f" Fault &rarr; brake (max) plus the slowest rest as distance: {_f(iso['response_and_rest_max_mm'], '{:.0f}')}"
         " mm.</p>",
