@@ -233,7 +233,7 @@ def page(ev):
         "td,th{border:1px solid #999;padding:.2em .6em;text-align:right}td:first-child{text-align:left}"
         "tr.alarm{background:#fdd}.bad{color:#b00;font-weight:bold}",
         "</style></head><body><h1>Safety evidence of a fault campaign</h1>",
-        f"<p>{html.escape(json.dumps(ev['campaign']))}</p>",
+        "<p>Campaign: " + html.escape(", ".join(f"{k} {v}" for k, v in ev["campaign"].items()) or "-") + "</p>",
         f"<p>Stop category (IEC 60204-1): <b>{ev['stop_category']}</b>. Events {s['events']}, faults that must "
         f"stop {s['faults_injected']}, stopped {s['stops']}, missed "
         f"<span class='{'bad' if s['missed_stops'] else ''}'>{s['missed_stops']}</span>.</p>",
