@@ -108,8 +108,8 @@ def table(rows, other, free, model, seeds, onset_s):
             out.append(f"| {o['fault']} | {o['joint']} | {o['within']}/{len(o['latency_ms'])} | "
                        + ", ".join(fmt(x, 3) for x in o["latency_ms"]) + f" | {', '.join(sorted(set(o['kinds'])))} |")
     out += ["", f"fault-free: {free['runs']} runs, {free['seconds']:.0f} simulated s: {len(free['stops'])} stop ticks; "
-                f"in the {onset_s:g} s before the onset of each of the {free['cases']} cases run: "
-                f"{free['before_onset']} stop ticks"]
+                f"in the {onset_s:g} s before the onset of each of the {free['cases']} cases run (the same seeds' "
+                f"first {onset_s:g} s each time): {free['before_onset']} stop ticks"]
     return "\n".join(out)
 
 
