@@ -56,7 +56,7 @@ from .recordings import recordings_series, simulate_arm_recordings
 
 __all__ = ["FAULT_CLASSES", "WITHIN_S", "Setup", "Case", "Bracket", "make_fault", "simulate", "monitor_stops",
            "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "sets_limit",
-           "fault_free",
+           "fault_free", "training_series",
            "identify_model"]
 
 #: the fault classes with a magnitude, per joint (the simulator's faults; units rad/s^2, N m, rad)
@@ -366,7 +366,7 @@ def fault_free(model, setup: Setup, *, seeds, seconds):
 
 
 def identify_model(series, *, horizon=125, inflation=0.0, estimator="fd"):
-    """A model identified from ``series`` ({joint: JointSeries}, e.g. :func:`training_series`):
+    """A model identified from ``series`` ({joint: JointSeries}, e.g. :func:`training_series`'s):
     Theorem 1, min ‖W‖ + ‖V‖ (``reachset identify``'s default) with a given inflation."""
     plant = lwa4p_joint_plant()
     est = Estimator.named(estimator, plant)
