@@ -5,7 +5,9 @@ from a seeded schedule (:func:`reachset_ros.sim.campaign.schedule`: every simula
 kind on every joint, SIGKILL of the observer, controller and simulator, SIGSTOP of any node
 for 50-500 ms, stamp jumps, fault-free stretches; CPU burners on both cores for every other
 block of 8 events). Prints the table (docs/reliability.md, "Fault campaign") and writes
-``campaign.json`` (every outcome and the score) to the work directory.
+``campaign.json`` (every outcome and the score) and the safety evidence sheet
+(:mod:`reachset_ros.sim.evidence`: ``evidence.json``, ``evidence.html``; their paths printed)
+to the work directory.
 
 Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 480 --seed 1 --quiet 4 8`` (about
 80 minutes of wall time; six training recordings of 40 s, the inflation one grid step above the
@@ -28,6 +30,7 @@ from pathlib import Path
 from reachset_ros.domain import pick_domain_id
 from reachset_ros.workflows.campaign import run_campaign
 from reachset_ros.sim import campaign as cp
+from reachset_ros.sim import evidence
 
 
 def main(argv=None):
@@ -79,7 +82,16 @@ def main(argv=None):
     score = cp.score(outcomes, info.get("apparatus_stops", ()))
     (work / "campaign.json").write_text(json.dumps({"info": info, "score": score,
                                                      "outcomes": [o.as_dict() for o in outcomes]}, indent=1))
-    return report(score)
+    code = report(score)
+    write_evidence(work, outcomes, info)
+    return code
+
+
+def write_evidence(work, outcomes, info):
+    """The safety evidence sheet (:mod:`reachset_ros.sim.evidence`) in the work directory."""
+    ev = evidence.evidence(outcomes, info=info, apparatus_stops=info.get("apparatus_stops", ()))
+    for path in evidence.write(ev, work):
+        print(f"evidence: {path}")
 
 
 #: the short mode's schedule: 10 events, 7 expecting a stop (two accelerations, a bias, a killed
@@ -115,7 +127,9 @@ def rescore(work, events):
     frozen_before_motion(outcomes)
     link_onsets(outcomes)
     bag_brakes(outcomes)
-    return report(cp.score(outcomes, res["info"].get("apparatus_stops", ())))
+    code = report(cp.score(outcomes, res["info"].get("apparatus_stops", ())))
+    write_evidence(work, outcomes, res["info"])
+    return code
 
 
 if __name__ == "__main__":

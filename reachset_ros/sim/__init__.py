@@ -19,6 +19,8 @@ limits, effort limits, brakes and the reference box come from the model
 * :mod:`~reachset_ros.sim.real_runs` - the simulated arm along the real LWA-4P runs'
   trajectories (its calibration to the real arm, ``benchmarks/calibrate_sim.py``);
 * :mod:`~reachset_ros.sim.campaign` - the fault campaign's schedule, judge and score;
+* :mod:`~reachset_ros.sim.evidence` - the campaign's safety evidence sheet (issue 35.6);
+* :mod:`~reachset_ros.sim.detectability` - the minimum detectable fault by bisection (issue 35.5);
 * :mod:`~reachset_ros.sim.link` - a lossy, delaying link that never reorders.
 
 May import: :mod:`reachset_ros.robot`, :mod:`reachset_ros.systems` (the control law and the

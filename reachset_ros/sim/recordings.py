@@ -283,7 +283,7 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
         URDF's effort limits when the arm clamps, i.e. what the drive executes),
         ``fault_onsets``, ``counters`` (the arm's :attr:`SimulatedArm.counters` at the end:
         ``hard_stop``, ``torque_clamped``, ``invalid_command``, ``brake_engaged``) and
-        ``skipped_samples`` (n,) (non-finite measurements skipped, per joint).
+        ``skipped_samples`` (n,) (non-finite samples skipped, per joint), ``q_true``, ``qd_true`` (T, n) true states.
 
     Returns
     -------
@@ -307,12 +307,12 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
     XH = [np.empty((T, len(xn))) for xn in xnames]
     stamps = np.empty(T, np.int64)
     qh, qdh, u = Qd[0].copy(), QDd[0].copy(), np.zeros(n)    # (held by a joint whose sample is skipped)
-    QDm, EFF = np.empty((T, n)), np.empty((T, n))
+    QDm, EFF, QT, QDT = (np.empty((T, n)) for _ in range(4))      # QT, QDT: the true state at each stamp
     skipped = np.zeros(n, np.int64)
     lim = arm.tau_limit                 # the drives' clamp (inf where there is none)
     for k in range(T):
-        stamps[k] = m.stamp_ns
-        QDm[k] = m.qd_measured
+        stamps[k], QDm[k] = m.stamp_ns, m.qd_measured
+        _, QT[k], QDT[k] = arm.true_state
         y = m.q_measured
         for j in range(n):
             obs, ctrl = comps[j]
@@ -334,7 +334,7 @@ def simulate_arm_recordings(seconds, gains=None, seed=0, sim_config=None, refere
         m = arm.step(tau)
     if log is not None:
         log.update(stamps=stamps.copy(), q=Y.copy(), qd=QDm, effort=EFF, fault_onsets=onsets, names=names,
-                   counters=dict(arm.counters), skipped_samples=skipped)
+                   counters=dict(arm.counters), skipped_samples=skipped, q_true=QT, qd_true=QDT)
     out = {}
     for j, nm in enumerate(names):
         out[nm] = Recording(stamps.copy(), Y[:, j].copy(), U[:, j].copy(), XH[j], xnames[j],

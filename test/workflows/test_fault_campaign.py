@@ -129,6 +129,16 @@ def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tm
     # the effect: every judged stop left the arm at rest, read from the recorded bags
     assert s["rest_judged"] >= s["stops"] - sum(1 for o in res["outcomes"] if o["event"] == "kill sim_node")
     assert s["not_at_rest"] == [], s["not_at_rest"]
+    # the safety evidence sheet (issue 35.6) beside it, consistent with the score
+    ev = json.loads((tmp_path / "evidence.json").read_text())
+    assert f"evidence: {tmp_path / 'evidence.json'}" in p.stdout and (tmp_path / "evidence.html").is_file()
+    assert {k: ev["score"][k] for k in ("faults_injected", "stops", "missed_stops", "false_stops")} == \
+        {k: s[k] for k in ("faults_injected", "stops", "missed_stops", "false_stops")}
+    assert sum(c["n"] for c in ev["detection"].values()) == s["faults_injected"]
+    assert sum(c["stopped"] for c in ev["detection"].values()) == s["stops"]
+    assert ev["miss_upper_bound"] == pytest.approx(1 - 0.05 ** (1 / s["faults_injected"]))
+    assert ev["false_stops"]["false_stops"] == 0 and ev["stops"]["alarms"] == 0
+    assert ev["response"]["detect_ms"]["n"] == s["stamp_latency_ms"]["n"]
     assert p.returncode == 0
 
 

@@ -1,0 +1,396 @@
+"""Minimum detectable fault (issue 35.5): the smallest fault the monitor stops within 100 ms.
+
+Pure core, no DDS. One case is the nodes' code path in one loop: the simulated arm
+(:mod:`.simulator`, with a fault of :data:`FAULT_CLASSES` injected at ``Setup.onset_s``) in
+closed loop with the certified control law (:func:`.recordings.simulate_arm_recordings`, each
+joint's observer and :class:`~reachset_ros.systems.closedloop.FeedbackLaw`, the nominal
+feedback linearization), and its ``/joint_states``, ``/plant_input`` and ``/reference``
+samples fed tick by tick to the monitor node's core
+(:class:`~reachset_ros.conformance.monitor_core.MonitorCore`) with a given model. A case is
+*stopped* at the stamp of the first tick the monitor would stop on: a measurement outside
+the model's reachable set (``violation``) or a data fault of the core (``invalid_sample``, a
+stuck sensor, ...); :func:`run_case`.
+
+:func:`minimum_detectable` bisects the magnitude (:func:`bisect`) for the smallest one
+stopped within ``Setup.within_s`` (100 ms) of the fault's onset stamp (the first measurement
+the fault can change, :meth:`~.simulator.SimulatedArm.onset_stamp`) in every seed; detection
+is assumed monotone in the magnitude (a larger fault of the same kind leaves the sets no
+later), which the bisection's bracket reports but does not prove.
+
+The yardstick (``/work/shared/notes/detection-limit.md``; docs/performance.md, "Minimum
+detectable fault"): no sound monitor can guarantee to stop a fault that the true
+disturbances can mimic. In simulation the truth is known: :func:`disturbance_trace` recovers
+the per-tick disturbance of the paper's Appendix-A plant, ``w = [w1, w2]`` (velocity and
+acceleration generators of ``G'_W``), from the arm's true states and the plant input that
+acted, and :func:`limits` turns a fault-free run's traces into each class' limit:
+
+* ``acceleration`` (rad/s^2 on one joint): ``max |w2|`` of that joint: a constant
+  acceleration no larger is the disturbance at its bound;
+* ``torque`` (N m on one joint): the largest torque whose acceleration on every joint ``i``,
+  ``|M_true(q)^-1_ij| tau`` along the run, stays within joint i's ``max |w2|``;
+* ``bias`` (rad on one joint's position reading): twice the measurement-noise bound
+  (3 sigma, the simulator's clip, plus half the encoder step): a noise sample moving from
+  one end of V to the other is a step of that size.
+
+Frozen sensors and NaN samples have no magnitude: the stuck-sensor rule and the
+non-finite-sample rule bound them (reported by the benchmark with their latency).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .. import robot as rb
+from ..conformance import model as mdl
+from ..conformance.estimators import Estimator
+from ..conformance.identify import identify_sets
+from ..conformance.monitor_core import MonitorCore
+from ..conformance.theorem1 import Theorem1, deviation_extremes_many
+from ..conformance.watches import FaultEvent
+from ..errors import ReachsetError
+from ..systems.plant import lwa4p_joint_plant
+from . import simulator as simm
+from .recordings import recordings_series, simulate_arm_recordings
+
+__all__ = ["FAULT_CLASSES", "WITHIN_S", "Setup", "Case", "Bracket", "make_fault", "simulate", "monitor_stops",
+           "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "sets_limit",
+           "fault_free", "training_series",
+           "identify_model"]
+
+#: the fault classes with a magnitude, per joint (the simulator's faults; units rad/s^2, N m, rad)
+FAULT_CLASSES = ("acceleration", "torque", "bias")
+#: a fault counts as stopped when the monitor's stop stamp is at most this after its onset (s)
+WITHIN_S = 0.1
+
+
+def make_fault(kind, joint, magnitude, start_s):
+    """The simulator's fault of ``kind`` (as ``sim_node``'s ``fault`` parameter names them)."""
+    if kind == "acceleration":
+        return simm.AccelerationDisturbance(start_s=start_s, joint=joint, acceleration=float(magnitude))
+    if kind == "torque":
+        return simm.TorqueDisturbance(start_s=start_s, joint=joint, torque=float(magnitude))
+    if kind == "bias":
+        return simm.SensorBias(start_s=start_s, joint=joint, bias=float(magnitude))
+    if kind == "frozen":
+        return simm.FrozenSensor(start_s=start_s, joint=joint)
+    if kind == "nan":
+        return simm.NaNSamples(start_s=start_s, joint=joint, count=max(1, int(magnitude)))
+    raise ReachsetError(f"unknown fault {kind!r}; known: {', '.join(FAULT_CLASSES + ('frozen', 'nan'))}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Setup:
+    """The simulated set-up of every case.
+
+    Attributes
+    ----------
+    sim_config : SimConfig or None
+        The arm (None: :meth:`~.simulator.SimConfig.calibrated`, the simulated LWA-4P).
+    gains : dict or None
+        Observer and control-law gains (None: the simulator's recording gains).
+    reference_config : ReferenceConfig or None
+        The random point-to-point references (None: Table I's).
+    onset_s : float
+        When the fault starts, s after the reset (the monitor's test cases have reached k*).
+    within_s : float
+        The detection window after the onset (:data:`WITHIN_S`).
+    tail_s : float
+        Simulated beyond the window (the last ticks of the window complete).
+    """
+
+    sim_config: object = None
+    gains: dict | None = None
+    reference_config: object = None
+    onset_s: float = 3.0
+    within_s: float = WITHIN_S
+    tail_s: float = 0.02
+
+    def config(self):
+        return self.sim_config if self.sim_config is not None else simm.SimConfig.calibrated()
+
+    @property
+    def seconds(self):
+        return self.onset_s + self.within_s + self.tail_s
+
+
+@dataclass(frozen=True, kw_only=True)
+class Case:
+    """One simulated case: what the monitor did around one fault.
+
+    ``stop_ns``/``stop_kind``/``stop_joint``: the first stop at or after the onset (None, ""
+    if none in the run); ``false_stops``: stop ticks before the onset (fault-free running).
+    """
+
+    fault: str
+    joint: str
+    magnitude: float
+    seed: int
+    onset_ns: int
+    stop_ns: int | None
+    stop_kind: str
+    stop_joint: str
+    false_stops: int
+
+    @property
+    def latency_ms(self):
+        """Onset to the stop's stamp (the first non-conformant measurement), ms; None: no stop."""
+        return None if self.stop_ns is None else (self.stop_ns - self.onset_ns) * 1e-6
+
+    def stopped_within(self, seconds):
+        return self.stop_ns is not None and self.stop_ns - self.onset_ns <= round(seconds * 1e9)
+
+
+def simulate(setup: Setup, *, seed, faults=(), seconds=None):
+    """``(recordings, log)`` of :func:`~.recordings.simulate_arm_recordings` for ``setup``."""
+    log = {}
+    recs = simulate_arm_recordings(setup.seconds if seconds is None else seconds, setup.gains, seed=seed,
+                                   sim_config=setup.config(), reference_config=setup.reference_config,
+                                   faults=tuple(faults), log=log)
+    return recs, log
+
+
+def monitor_stops(model, recs, *, after_ns=None):
+    """The ticks the monitor core stops on, fed as the nodes feed it (reference, position, input).
+
+    Returns a list of ``(stamp_ns, kind, joint)``: ``violation`` (a measurement outside the
+    reachable set; the first violated joint) or a :class:`FaultEvent`'s kind. With
+    ``after_ns`` the feed ends at the first stop at or after that stamp.
+    """
+    names = list(recs)
+    first = recs[names[0]]
+    Y = np.column_stack([recs[n].y for n in names])
+    U = np.column_stack([recs[n].u for n in names])
+    QD = np.column_stack([recs[n].qd_d for n in names])
+    core = MonitorCore(model, [n for n in names if n in model.joints])
+    out = []
+    for k, st in enumerate(first.stamps.tolist()):
+        core.add_reference(st, names, QD[k])
+        events = core.add_y(st, names, Y[k]) + core.add_u(st, names, U[k])
+        for ev in events:
+            if isinstance(ev, FaultEvent):
+                out.append((int(ev.stamp), ev.kind, ev.joint or ""))
+            elif "violation" in ev.result["status"]:
+                out.append((int(ev.stamp), "violation", core.joints[ev.result["status"].index("violation")]))
+        if after_ns is not None and out and out[-1][0] >= after_ns:
+            break
+    return out
+
+
+def run_case(model, setup: Setup, *, fault, joint, magnitude, seed):
+    """One case: the fault (``magnitude`` 0 of a physical fault: none at all) and the monitor."""
+    faults = [] if (magnitude == 0 and fault in FAULT_CLASSES) else [make_fault(fault, joint, magnitude,
+                                                                               setup.onset_s)]
+    recs, log = simulate(setup, seed=seed, faults=faults)
+    stamps = log["stamps"]
+    onset = int(log["fault_onsets"][0]) if faults else int(stamps[0] + round(setup.onset_s * 1e9))
+    stops = monitor_stops(model, recs, after_ns=onset)
+    after = [s for s in stops if s[0] >= onset]
+    st = after[0] if after else (None, "", "")
+    return Case(fault=fault, joint=joint, magnitude=float(magnitude), seed=int(seed), onset_ns=onset,
+                stop_ns=st[0], stop_kind=st[1], stop_joint=st[2], false_stops=len(stops) - len(after))
+
+
+def detected(model, setup: Setup, *, fault, joint, magnitude, seeds):
+    """``(all stopped within the window, cases)`` over ``seeds``; stops at the first seed that
+    is not (the rest would not change the verdict)."""
+    cases = []
+    for s in seeds:
+        c = run_case(model, setup, fault=fault, joint=joint, magnitude=magnitude, seed=s)
+        cases.append(c)
+        if not c.stopped_within(setup.within_s):
+            return False, cases
+    return True, cases
+
+
+@dataclass(frozen=True, kw_only=True)
+class Bracket:
+    """The result of :func:`bisect`: ``lo`` not detected, ``hi`` detected (None: nothing tried
+    up to the largest magnitude was), and every magnitude tried with its verdict."""
+
+    lo: float
+    hi: float | None
+    tried: tuple
+
+    @property
+    def width(self):
+        return None if self.hi is None else self.hi - self.lo
+
+
+def bisect(predicate, *, lo, hi, rel_tol=0.05, grow=2.0, max_grow=4, max_steps=40):
+    """Bracket the smallest magnitude for which ``predicate`` holds (assumed monotone).
+
+    ``predicate(lo)`` must be false (0: no fault); ``hi`` is grown by ``grow`` up to
+    ``max_grow`` times until the predicate holds. Then the bracket is halved (arithmetic
+    while ``lo`` is 0, geometric after) until ``hi <= lo * (1 + rel_tol)``.
+
+    Returns
+    -------
+    Bracket
+    """
+    if not (0 <= lo < hi):
+        raise ReachsetError(f"bisect: need 0 <= lo < hi, got {lo}, {hi}")
+    tried = []
+
+    def ask(x):
+        v = bool(predicate(x))
+        tried.append((float(x), v))
+        return v
+
+    if ask(lo):
+        raise ReachsetError(f"bisect: the predicate already holds at the lower end {lo}")
+    for _ in range(max_grow + 1):
+        if ask(hi):
+            break
+        lo, hi = hi, hi * grow
+    else:
+        return Bracket(lo=lo, hi=None, tried=tuple(tried))
+    for _ in range(max_steps):
+        if lo > 0 and hi <= lo * (1 + rel_tol):
+            break
+        mid = 0.5 * (lo + hi) if lo <= 0 or hi > 4 * lo else math.sqrt(lo * hi)
+        if ask(mid):
+            hi = mid
+        else:
+            lo = mid
+    return Bracket(lo=lo, hi=hi, tried=tuple(tried))
+
+
+def minimum_detectable(model, setup: Setup, *, fault, joint, seeds, hi, rel_tol=0.05):
+    """The bracketed minimum magnitude of ``fault`` on ``joint`` stopped within the window in
+    every seed, and the cases at the bracket's upper end (their latencies).
+
+    Returns a dict: ``lo``, ``hi`` (:class:`Bracket`), ``latency_ms`` (per seed, at ``hi``),
+    ``tried`` (magnitude, verdict), ``cases`` (cases run) and ``false_stops`` (stop ticks in
+    the fault-free stretch before the onset, summed over every case run)."""
+    ran = {}
+
+    def pred(m):
+        if m <= 0:
+            return False
+        ok, ran[m] = detected(model, setup, fault=fault, joint=joint, magnitude=m, seeds=seeds)
+        return ok
+    br = bisect(pred, lo=0.0, hi=hi, rel_tol=rel_tol)
+    cases = [c for cs in ran.values() for c in cs]
+    lat = None if br.hi is None else [c.latency_ms for c in ran[br.hi]]
+    return {"fault": fault, "joint": joint, "lo": br.lo, "hi": br.hi, "latency_ms": lat, "tried": list(br.tried),
+            "cases": len(cases), "false_stops": sum(c.false_stops for c in cases)}
+
+
+def disturbance_trace(log, dt=simm.DT):
+    """Per-tick disturbances ``(w1, w2)`` (T-2, n) of the Appendix-A plant along a run.
+
+    ``q[k+1] = q[k] + dt qd[k] + dt^2/2 (u + w2) + dt w1``, ``qd[k+1] = qd[k] + dt (u + w2)``
+    with ``u`` the plant input acting during ``[t_k, t_{k+1})`` (computed at tick k-1: one
+    sample of input delay) and ``q``, ``qd`` the arm's true states (``log["q_true"]``,
+    ``log["qd_true"]``); ``log["u"]`` (T, n) the plant inputs of the run."""
+    q, qd, u = (np.asarray(log[k], float) for k in ("q_true", "qd_true", "u"))
+    ua = u[:-2]                                   # acting during [t_k, t_{k+1}), k = 1..T-2
+    w2 = (qd[2:] - qd[1:-1]) / dt - ua
+    w1 = (q[2:] - q[1:-1] - dt * qd[1:-1] - 0.5 * dt * dt * (ua + w2)) / dt
+    return w1, w2
+
+
+def _noise_bound(cfg, n):
+    sig = np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
+    return 3.0 * sig + 0.5 * float(cfg.quantization)
+
+
+def limits(setup: Setup, *, seeds, seconds=None):
+    """Each class' detection limit per joint from fault-free runs of ``setup`` (module docstring).
+
+    Returns ``{"acceleration": {joint: rad/s^2}, "torque": {joint: N m}, "bias": {joint: rad},
+    "w2_max": {joint: rad/s^2}}``."""
+    cfg = setup.config()
+    truth = cfg.true_robot()
+    data = rb.create_data(truth)
+    w2max, minv = None, None
+    for s in seeds:
+        recs, log = simulate(setup, seed=s, seconds=seconds)
+        names = list(recs)
+        log = dict(log, u=np.column_stack([recs[n].u for n in names]))
+        _, w2 = disturbance_trace(log, cfg.dt)
+        m = np.max(np.abs(w2), axis=0)
+        w2max = m if w2max is None else np.maximum(w2max, m)
+        # the largest |M^-1_ij| along the run (every 10th tick: M changes slowly)
+        inv = np.max([np.abs(np.linalg.inv(rb.mass_matrix(truth, data, q))) for q in log["q_true"][::10]], axis=0)
+        minv = inv if minv is None else np.maximum(minv, inv)
+    n = len(names)
+    torque = {nm: float(np.min(w2max / minv[:, j])) for j, nm in enumerate(names)}
+    vb = _noise_bound(cfg, n)
+    return {"acceleration": dict(zip(names, w2max.tolist())), "torque": torque,
+            "bias": {nm: float(2 * vb[j]) for j, nm in enumerate(names)}, "w2_max": dict(zip(names, w2max.tolist()))}
+
+
+def sets_limit(model, joint, *, fault="acceleration", within_s=WITHIN_S):
+    """The smallest fault the model's own sets stop within ``within_s`` at best, or None.
+
+    Theorem 1's bound ``d+_k`` (:meth:`~reachset_ros.conformance.theorem1.Theorem1.offsets`) of
+    a test case started just before the fault, against the fault's own effect on the output at
+    step k with no disturbance at all: ``r_k = C sum_{m<k} A^m g`` for a constant acceleration
+    (``g`` the plant's acceleration generator, the last column of ``G'_W``), ``r_k = 1`` for a
+    bias. ``min_k d+_k / r_k`` over the steps within ``within_s`` of the first changed
+    measurement: what the sets' size alone gives away, whatever the disturbances do (a torque
+    depends on the configuration: None)."""
+    from ..conformance.monitor import MonitorModel
+    if fault not in ("acceleration", "bias"):
+        return None
+    dp = MonitorModel.from_model(model, joint).dp_vec
+    plant = model.plant
+    K = len(dp) - 1
+    if fault == "bias":
+        r = np.r_[0.0, np.ones(K)]
+    else:
+        g, A, C = np.asarray(plant.Gw)[:, -1], np.asarray(plant.A), np.asarray(plant.C)
+        x, acc, r = np.zeros(len(g)), np.zeros(len(g)), [0.0]
+        for _ in range(K):
+            acc = A @ acc + g                     # sum_{m<k} A^m g, one step further
+            x = acc
+            r.append(float((C @ x)[0]))
+        r = np.asarray(r)
+    first = int(np.flatnonzero(r > 0)[0])
+    last = min(K, first + int(round(within_s / plant.dt)))
+    k = np.arange(first, last + 1)
+    return float(np.min(dp[k] / r[k]))
+
+
+def fault_free(model, setup: Setup, *, seeds, seconds):
+    """The other side: fault-free runs of ``setup`` (``seconds`` each); returns a dict with
+    ``runs``, ``seconds``, ``stops`` (every stop tick, (seed, stamp, kind, joint))."""
+    stops = []
+    for s in seeds:
+        recs, _ = simulate(setup, seed=s, seconds=seconds)
+        stops += [(int(s), *x) for x in monitor_stops(model, recs)]
+    return {"runs": len(seeds), "seconds": float(seconds) * len(seeds), "stops": stops}
+
+
+def identify_model(series, *, horizon=125, inflation=0.0, estimator="fd"):
+    """A model identified from ``series`` ({joint: JointSeries}, e.g. :func:`training_series`'s):
+    Theorem 1, min ‖W‖ + ‖V‖ (``reachset identify``'s default) with a given inflation."""
+    plant = lwa4p_joint_plant()
+    est = Estimator.named(estimator, plant)
+    thm = Theorem1.build(plant, horizon)
+    devs = deviation_extremes_many(plant, est, series, horizon, thm)
+    joints = {}
+    for n, dev in devs.items():
+        sets = identify_sets(plant, thm, dev)
+        joints[n] = mdl.JointSets(alpha_w=tuple(sets.alpha_w.tolist()), alpha_v=tuple(sets.alpha_v.tolist()),
+                                  c_w=tuple(sets.c_w.tolist()), c_v=tuple(sets.c_v.tolist()),
+                                  test_cases=dev.test_cases, horizon=horizon)
+    return mdl.ConformanceModel(plant=plant, plant_spec={"kind": "lwa4p_joint", "dt": plant.dt}, estimator=est,
+                                horizon=horizon, joints=joints, inflation=float(inflation),
+                                input_source=mdl.input_source_of(None))
+
+
+def training_series(setup: Setup, *, seeds, seconds):
+    """``{joint: JointSeries}`` of fault-free runs of ``setup``, one segment per seed."""
+    from ..bags import concat_series
+    parts, t0 = [], None
+    for s in seeds:
+        ser = recordings_series(simulate(setup, seed=s, seconds=seconds)[0])[0]
+        first = int(next(iter(ser.values())).stamps[0])
+        shift = 0 if t0 is None else t0 - first
+        parts.append({n: replace(x, stamps=x.stamps + shift) for n, x in ser.items()})
+        t0 = int(next(iter(parts[-1].values())).stamps[-1]) + 1_000_000_000
+    return concat_series(parts, next(iter(parts[0].values())).dt)

@@ -1,0 +1,106 @@
+"""Issue 35.5: the minimum detectable fault, found by bisection on the pure core (no DDS).
+
+A model identified from three short fault-free runs of the simulated LWA-4P (inflation 2: sound
+on the other seeds' fault-free running used here); the cases are the nodes' code path in one
+loop (simulated arm, certified control law, the monitor node's core)."""
+import numpy as np
+import pytest
+
+from reachset_ros.errors import ReachsetError
+from reachset_ros.sim import detectability as dt
+from reachset_ros.sim import simulator as simm
+
+SETUP = dt.Setup(onset_s=2.0)
+SEEDS = (101, 102)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return dt.identify_model(dt.training_series(SETUP, seeds=(1, 2, 3), seconds=10.0), inflation=2.0)
+
+
+def test_a_fault_far_above_the_minimum_is_stopped_within_100_ms_and_far_below_is_not(model):
+    big = [dt.run_case(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=60.0, seed=s)
+           for s in SEEDS]
+    assert all(c.stopped_within(0.1) and c.stop_kind == "violation" for c in big)
+    assert all(c.false_stops == 0 for c in big)
+    small = [dt.run_case(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=0.05, seed=s)
+             for s in SEEDS]
+    assert not any(c.stopped_within(0.1) for c in small)
+    assert dt.detected(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=60.0, seeds=SEEDS)[0]
+    ok, cases = dt.detected(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=0.05, seeds=SEEDS)
+    assert not ok and len(cases) == 1          # the first seed decides
+
+
+def test_fault_free_runs_of_the_same_set_up_do_not_stop(model):
+    free = dt.fault_free(model, SETUP, seeds=SEEDS, seconds=6.0)
+    assert free["stops"] == [] and free["seconds"] == 12.0
+    none = dt.run_case(model, SETUP, fault="acceleration", joint="arm_1_joint", magnitude=0.0, seed=SEEDS[0])
+    assert none.stop_ns is None and none.false_stops == 0
+
+
+def test_the_bisection_brackets_the_boundary_and_is_deterministic_for_a_seed(model):
+    r = dt.minimum_detectable(model, SETUP, fault="acceleration", joint="arm_2_joint", seeds=SEEDS[:1], hi=60.0,
+                              rel_tol=0.1)
+    assert 0 < r["lo"] < r["hi"] <= 1.1 * r["lo"]
+    below = dt.run_case(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=r["lo"], seed=SEEDS[0])
+    above = dt.run_case(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=r["hi"], seed=SEEDS[0])
+    assert not below.stopped_within(0.1) and above.stopped_within(0.1)
+    assert r["latency_ms"] == [above.latency_ms] and above.latency_ms <= 100.0
+    assert r["false_stops"] == 0 and r["cases"] == len(r["tried"]) - 1       # magnitude 0 runs nothing
+    again = dt.minimum_detectable(model, SETUP, fault="acceleration", joint="arm_2_joint", seeds=SEEDS[:1],
+                                  hi=60.0, rel_tol=0.1)
+    assert again == r
+
+
+def test_bisect_brackets_a_threshold_and_grows_the_upper_end():
+    br = dt.bisect(lambda m: m >= 3.7, lo=0.0, hi=30.0, rel_tol=0.01)
+    assert br.lo < 3.7 <= br.hi <= 1.01 * br.lo
+    assert all(v == (m >= 3.7) for m, v in br.tried)
+    grown = dt.bisect(lambda m: m >= 50.0, lo=0.0, hi=10.0, rel_tol=0.05)
+    assert grown.lo < 50.0 <= grown.hi and (10.0, False) in grown.tried and (80.0, True) in grown.tried
+    never = dt.bisect(lambda m: False, lo=0.0, hi=1.0, max_grow=2)
+    assert never.hi is None and never.lo == 4.0
+    with pytest.raises(ReachsetError, match="already holds"):
+        dt.bisect(lambda m: True, lo=0.0, hi=1.0)
+
+
+def test_the_disturbance_trace_recovers_an_injected_acceleration():
+    """The limit's yardstick: w2 (the acceleration generator of Appendix A) from the arm's true
+    states. An exact model leaves only the estimates' error; a constant acceleration fault of
+    5 rad/s^2 on a joint shows as 5 in its w2."""
+    su = dt.Setup(sim_config=simm.SimConfig.ideal())
+    out = {}
+    for m in (0.0, 5.0):
+        faults = [simm.AccelerationDisturbance(start_s=0.0, joint=2, acceleration=m)] if m else []
+        recs, log = dt.simulate(su, seed=3, faults=faults, seconds=2.0)
+        log["u"] = np.column_stack([r.u for r in recs.values()])
+        out[m] = dt.disturbance_trace(log)[1]
+    assert np.abs(out[0.0]).max() < 0.3
+    assert np.median(out[5.0][10:, 2]) == pytest.approx(5.0, abs=0.1)
+
+
+def test_limits_per_class():
+    lim = dt.limits(SETUP, seeds=(101,), seconds=3.0)
+    assert set(lim) >= {"acceleration", "torque", "bias"}
+    names = list(lim["acceleration"])
+    assert len(names) == 6 and all(v > 0 for c in ("acceleration", "torque", "bias") for v in lim[c].values())
+    # the bias limit: twice the calibrated noise bound (3 sigma + half the encoder step)
+    cfg = simm.SimConfig.calibrated()
+    assert lim["bias"][names[0]] == pytest.approx(2 * (3 * cfg.position_noise[0] + 0.5 * cfg.quantization))
+    # a torque at the limit accelerates no joint beyond its w2 bound
+    assert all(lim["torque"][n] > 0 for n in names)
+
+
+def test_the_sets_own_limit_scales_with_the_inflation(model):
+    """Theorem 1's bound over the fault's noise-free effect: zero-centred sets scale with
+    (1 + inflation), and the acceleration's first effect is dt^2/2 at step 2 (one sample of
+    input and one of output delay)."""
+    from dataclasses import replace
+    a = dt.sets_limit(model, "arm_2_joint")                        # inflation 2
+    b = dt.sets_limit(replace(model, inflation=0.0), "arm_2_joint")
+    assert a == pytest.approx(3.0 * b) and b > 0
+    assert dt.sets_limit(model, "arm_2_joint", fault="bias") > 0
+    assert dt.sets_limit(model, "arm_2_joint", fault="torque") is None
+    # a longer window can only lower it
+    assert dt.sets_limit(model, "arm_2_joint", within_s=0.2) <= a
