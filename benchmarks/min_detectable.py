@@ -30,6 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+from reachset_ros import defaults  # noqa: E402
 from reachset_ros.conformance import model as mdl  # noqa: E402
 from reachset_ros.robot.dynamics import JOINT_NAMES, TABLE1_TAU_MAX  # noqa: E402
 from reachset_ros.sim import detectability as dt  # noqa: E402
@@ -52,11 +53,13 @@ def setup():
     return dt.Setup(gains=gains, reference_config=ReferenceConfig(lead=REFERENCE_LEAD))
 
 
-def train_model(su, *, runs, seconds, folds, log):
+def train_model(su, *, runs, seconds, folds, log, cost=None):
     """``reachset identify BAGS --calibrate FOLDS`` on ``runs`` fault-free simulated runs (run
     numbers not divisible by 4), cached by its parameters; returns the model file."""
     numbers = [i for i in range(1, 4 * runs) if i % 4][:runs]
-    key = hashlib.sha256(json.dumps([numbers, seconds, folds, INITIAL_GAINS, REFERENCE_LEAD, 1],
+    cost = cost or defaults.get("identify.cost")
+    key = hashlib.sha256(json.dumps([numbers, seconds, folds, INITIAL_GAINS, REFERENCE_LEAD, 1]
+                                    + ([cost] if cost != "linear" else []),
                                     sort_keys=True).encode()).hexdigest()[:12]
     d = CACHE / f"min_detectable_{key}"
     model = d / "model.yaml"
@@ -72,8 +75,9 @@ def train_model(su, *, runs, seconds, folds, log):
             write_recordings(bag, recs)
         bags.append(str(bag))
         log(f"training run {i}: {bag}")
-    res = identify(IdentifyOptions(bags=tuple(bags), calibrate=folds, out=model,
-                                   command=f"reachset identify {' '.join(bags)} --calibrate {folds} --out {model}"))
+    res = identify(IdentifyOptions(bags=tuple(bags), calibrate=folds, out=model, cost=cost,
+                                   command=f"reachset identify {' '.join(bags)} --calibrate {folds} --cost {cost} "
+                                           f"--out {model}"))
     log(f"identified: inflation {res.inflation}")
     return model
 
@@ -123,6 +127,8 @@ def main(argv=None):
     ap.add_argument("--train", type=float, default=40.0, help="simulated s per training run")
     ap.add_argument("--train-runs", type=int, default=10)
     ap.add_argument("--calibrate", type=int, default=5, help="identify --calibrate K")
+    ap.add_argument("--cost", default=None, choices=["linear", "quadratic", "detection"],
+                    help="identify --cost (default: identify's, detection; linear: the numbers before issue 35.2)")
     ap.add_argument("--fault-free", type=float, default=60.0, help="simulated s of fault-free running per seed")
     ap.add_argument("--json", default=None, help="write every row and case here")
     a = ap.parse_args(argv)
@@ -131,7 +137,7 @@ def main(argv=None):
         print(s, file=sys.stderr, flush=True)
     su = setup()
     path = Path(a.model) if a.model else train_model(su, runs=a.train_runs, seconds=a.train, folds=a.calibrate,
-                                                       log=log)
+                                                       log=log, cost=a.cost)
     model = mdl.load(path)
     lim = dt.limits(su, seeds=a.seeds, seconds=a.fault_free)
     rows, other, before = [], [], 0
