@@ -46,8 +46,9 @@ def cli(*args):
 
 def measure(*, data, d, calibrate, margin, accel):
     """The before/after rows (module docstring)."""
-    cli("import-lwa4p", data, "--runs", "train", "--out", d / "train")
-    cli("import-lwa4p", data, "--runs", "heldout", "--out", d / "heldout")
+    for runs in ("train", "heldout"):             # a work directory's bags are reused
+        if not (d / runs).exists():
+            cli("import-lwa4p", data, "--runs", runs, "--out", d / runs)
     after = d / "per_joint.yaml"
     ident = cli("identify", d / "train", "--calibrate", calibrate, "--calibrate-margin", margin, "--out", after,
                 "--json")

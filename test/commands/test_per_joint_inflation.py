@@ -2,6 +2,8 @@
 inflation, in ``check``, ``replay``, the monitor (pure and compiled tick) and the R*_u
 certificate. Before, one inflation, the largest over the joints, was applied to every joint:
 a fault on a joint with tight sets that stayed inside the largest inflation went unseen."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import yaml
@@ -17,7 +19,9 @@ from reachset_ros.errors import ReachsetError
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.nodes.synthesis_node import certify_synthesis
 from reachset_ros.systems.gains import Gains, certify_pair
+from reachset_ros.synthesis.pipeline import SynthesisOptions, plan
 from reachset_ros.systems.plant import lwa4p_joint_plant
+from reachset_ros.workflows.identify import DEFAULT_GRID, calibrate_margin
 
 from test_reliability_cli import DT_NS, T0, clean_rows, run, run_json, simulate, write_bag
 
@@ -202,3 +206,45 @@ def test_the_certificate_of_a_joint_uses_its_own_inflation(tmp_path):
     assert certify_synthesis(data, str(tmp_path / "m.yaml")) == ""
     why = certify_synthesis({"joints": {B: {"u_max": 26.0, "u_ff": 2.0}}}, str(tmp_path / "m.yaml"))
     assert why.startswith(f"joint {B}: reachable input R*_u")
+
+
+def test_identify_calibrate_stores_each_joints_own_value(tmp_path, capsys):
+    """``identify --calibrate 2``: joint B's second run is disturbed 1.6 times harder than its
+    first, joint A's runs alike, so the folds need more on B than on A. Each joint's block
+    stores its own cross-validated value (old code: the largest, once, for both), the JSON
+    reports it as the joint's ``inflation``, the record binds it; ``--calibrate-margin 1``
+    steps each joint's own value; ``--inflation F`` applies F to both."""
+    bags = []
+    for b in range(2):
+        y, u = np.empty((N, 2)), np.empty((N, 2))
+        y[:, 0], u[:, 0] = simulate(N, seed=500 + b)
+        y[:, 1], u[:, 1] = simulate(N, seed=510 + b, alpha_w=(0.03 * (1 + 0.6 * b), 3.0 * (1 + 0.6 * b)))
+        bags.append(write_bag(tmp_path / f"b{b}", clean_rows(T0 + DT_NS * np.arange(N) + b * 10**11, y, u)))
+    grid = sorted({0.0, *DEFAULT_GRID})
+    for margin in (0, 1):
+        out = tmp_path / f"m{margin}.yaml"
+        r = run_json(["identify", *bags, "--horizon", HORIZON, "--calibrate", 2, "--calibrate-margin", margin,
+                      "--out", out], capsys)
+        cv = {n: r["joints"][n]["calibration"]["inflation"] for n in (A, B)}
+        want = {n: calibrate_margin(x, grid, margin) if margin else x for n, x in cv.items()}
+        assert cv[A] < cv[B]                       # the data make the joints differ
+        assert {n: r["joints"][n]["inflation"] for n in (A, B)} == want and r["inflation"] == want[B]
+        doc = yaml.safe_load(out.read_text())
+        assert {n: doc["joints"][n]["inflation"] for n in (A, B)} == want and doc["inflation"] == want[B]
+        assert doc["calibration"]["inflations"] == want and doc["calibration"]["per_joint"] == cv
+        assert mdl.load(out).inflations() == want
+    out = tmp_path / "given.yaml"
+    run_json(["identify", *bags, "--horizon", HORIZON, "--inflation", 0.3, "--out", out], capsys)
+    assert mdl.load(out).inflations() == {A: 0.3, B: 0.3}
+
+
+def test_reidentify_synthesises_for_each_joints_own_inflation(tmp_path):
+    """``synthesize --mode reidentify --model M``: each joint's R*_u is constrained for its own
+    inflation in M (old code: the model's one value for all); ``--inflation F`` for all."""
+    path = tmp_path / "m.yaml"
+    m = _gains_model(path, 0.0, 0.5)
+    mdl.save(replace(m, input_source=dict(mdl.PLANT_INPUT)), path)
+    pl = plan([tmp_path / "unused"], SynthesisOptions(mode="reidentify", model=str(path)))
+    assert pl.inflation == {A: 0.0, B: 0.5}
+    assert plan([tmp_path / "unused"], SynthesisOptions(mode="reidentify", model=str(path), inflation=0.3)
+                ).inflation == 0.3
