@@ -284,7 +284,9 @@ def demo_tracking(data, syn, until, model=None, references=None, inflation=0.0, 
               "ticks_in_transient": int(len(t) - n),
               "transient_s": max(((hi - lo) * 1e-9 for lo, hi in windows), default=0.0)}
         if model is not None and references is not None and references.get(name):
-            box = run_tracking_set(model, name, references[name], inflation)
+            # the joint's own inflation in the monitor's model (issue 35.1); ``inflation``: a model without joints' own
+            box = run_tracking_set(model, name, references[name],
+                                   model.joint_inflation(name) if name in model.joints else inflation)
             if box is not None:
                 c, rr = box
                 inside_run = np.all(np.abs(e - c) <= rr, axis=1)
@@ -375,7 +377,7 @@ def plot_deviations(directory, name, model, thm, devs):
     plt = _plt()
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    offs = thm.offsets(model.joints[name].xi(model.inflation))
+    offs = thm.offsets(model.checked_xi(name))
     k = np.arange(len(offs))
     hi = np.array([o[0][0] for o in offs])
     lo = -np.array([o[1][0] for o in offs])

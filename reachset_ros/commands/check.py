@@ -43,7 +43,7 @@ def _fleet(args, model, thm, fleet):
                 raise ReachsetError(f"joint {n} is not in the model {args.model}")
     read = read_spec(args, names, model.plant.dt)
     sweep = fl.SweepSpec(model.plant, model.estimator, model.horizon, thm)
-    xis = {n: model.joints[n].xi(model.inflation) for n in (names or model.joints)}
+    xis = {n: model.checked_xi(n) for n in (names or model.joints)}
     devs = None
     with fleet:
         checked, report = fl.check(fleet, args.bags, read, sweep, xis)
@@ -68,7 +68,7 @@ def run(args):
         for name, s in series.items():
             if name not in model.joints:
                 raise ReachsetError(f"joint {name} is not in the model {args.model}")
-            xi = model.joints[name].xi(model.inflation)
+            xi = model.checked_xi(name)
             res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
             joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
                                         res)

@@ -210,6 +210,7 @@ def summarize(res, record, workdir):
         "synthesis": res.get("synthesis"), "reidentify": res.get("reidentify"),
         "record": str(record), "early_stop": res.get("early_stop"),
         "monitor_model": res.get("monitor_model"), "inflation": res.get("inflation"),
+        "inflations": res.get("inflations"),     # each joint's, the monitor's sets (issue 35.1); "inflation": the largest
         "margin": res.get("inflation"),   # deprecated name of "inflation", kept for readers of old summaries
         "inflation_certified": res.get("inflation_certified"),       # largest inflation with R*_u in U_p, per joint
         "inflation_is_certified": res.get("inflation_is_certified"),

@@ -15,8 +15,8 @@ Options beyond the paper's separate approach:
   are checked on the validation bags (``reachset check``'s arithmetic) with the sets scaled
   by 1 + inflation for inflation 0 and each ``--inflation-grid`` value; per joint the
   smallest grid value with no held-out violation is chosen (the largest grid value,
-  flagged, if none). The model's ``inflation`` field (one value for all joints, as the
-  monitor uses it) is the largest per-joint choice. For that inflation a test fault is
+  flagged, if none) and stored as that joint's ``inflation`` in the model (the model-level
+  ``inflation`` is the largest, for readers of one value). At that inflation a test fault is
   injected into the validation data, a constant acceleration of ``--fault-accel`` rad/s^2
   (the measured position gets accel/2 * t^2 from the onset, the middle of the longest
   validation segment), and the detection delay (ticks from onset to first violation) is
@@ -79,15 +79,15 @@ def add_arguments(p):
     p.add_argument("--inflation-grid", type=float, nargs="+", metavar="F",
                    help=f"inflations tried on the validation bags (default {' '.join(map(str, DEFAULT_GRID))})")
     p.add_argument("--inflation", type=float, default=None, metavar="F",
-                   help="the model's inflation: the monitor checks the sets scaled by 1 + F (default 0; "
+                   help="the model's inflation, every joint's: the monitor checks the sets scaled by 1 + F (default 0; "
                         "with --validate it is calibrated instead, so the two exclude each other)")
     p.add_argument("--calibrate", type=int, default=None, metavar="K",
                    help="calibrate the inflation by K-fold cross-validation inside the given bags (folds of whole "
                         "runs: stretches of consecutive stamps); per joint the largest over the folds of the "
                         "smallest --inflation-grid value at which the fold is conformant with sets identified on "
-                        "the other folds; the model stores the largest over the joints")
+                        "the other folds; each joint's value is stored as that joint's inflation")
     p.add_argument("--calibrate-margin", type=int, default=0, metavar="N",
-                   help="with --calibrate: store the --inflation-grid value N steps above the cross-validated "
+                   help="with --calibrate: store per joint the --inflation-grid value N steps above its cross-validated "
                         "one (default 0). The folds calibrate for data as long as a fold; a run many folds long "
                         "sees more (docs/reliability.md, run-length margin)")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",

@@ -228,7 +228,8 @@ def run(args):
     weak = (f"\nWEAK GUARANTEE: horizon {bs.horizon} is below the plant's minimum {bs.minimum_horizon} "
             "(--allow-weak-horizon)") if bs.horizon_below_minimum else ""
     cal = res.calibration
-    cal = "" if cal is None else (f"\ninflation calibrated on these sets ({cal['folds']} folds): {cal['inflation']:g}"
+    cal = "" if cal is None else (f"\ninflation calibrated on these sets ({cal['folds']} folds), per joint: "
+                                  + ", ".join(f"{n} {x:g}" for n, x in cal["inflations"].items())
                                   + ("" if cal["certified"] else f"; NOT CERTIFIED: R*_u was synthesised for inflation "
                                      f"{cal['synthesised_for_inflation']:g} (synthesize again with --inflation "
                                      f"{cal['inflation']:g})"))

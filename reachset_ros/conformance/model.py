@@ -3,7 +3,7 @@
 Holds everything needed to reproduce a verdict: the plant (the paper's per-joint
 LWA-4P model or explicit matrices), per joint the identified sets W = (c_W, G'_W diag
 alpha_W) and V = (c_V, G'_V diag alpha_V), the horizon k*, the initial-state estimator,
-an optional calibrated inflation, optional gains, provenance (input bags and their
+an inflation per joint (optionally calibrated), optional gains, provenance (input bags and their
 SHA-256), and the horizon rule's outcome (``minimum_horizon`` of the plant, and
 ``horizon_below_minimum: true`` when k* was accepted below it with ``--allow-weak-horizon``;
 see :func:`~reachset_ros.conformance.kernels.require_minimum_horizon`; a reader refuses a
@@ -21,9 +21,16 @@ Two bindings (issue 34.10/11), checked by the readers:
   data's u_p came from the plant-input topic, add ``input_source: {kind: topic}``.
 * ``calibration``: when the inflation was calibrated (``identify --calibrate``/``--validate``,
   :func:`reachset_ros.workflows.calibrate.calibrate_model`), the digest of the sets it was
-  calibrated on (:func:`sets_digest`) and the inflation; every reader refuses a model whose
-  sets or inflation are not the record's (:func:`require_calibrated_sets`). No record: the
-  inflation was given (``--inflation``), not calibrated.
+  calibrated on (:func:`sets_digest`) and every joint's inflation (``inflations``); every
+  reader refuses a model whose sets or inflations are not the record's
+  (:func:`require_calibrated_sets`). No record: the inflation was given (``--inflation``), not
+  calibrated.
+
+Inflation per joint (issue 35.1): each joint's block carries its ``inflation``; the monitor
+checks that joint's sets scaled by ``1 + inflation`` (:meth:`ConformanceModel.checked_xi`). The
+model-level ``inflation`` is written as the largest joint value, so a reader that applies one
+value to every joint checks sets that only grow; a file whose joints carry none (written before
+per-joint inflation) applies its model-level value to every joint.
 """
 from __future__ import annotations
 
@@ -63,6 +70,7 @@ class JointSets:
     horizon: int = 125
     gains: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    inflation: float = None     # this joint's inflation; None: the model's (ConformanceModel.joint_inflation)
 
     def xi(self, inflation=0.0):
         """Theorem-1 parameter vector [c_W, c_V, (1+inflation) alpha_W, (1+inflation) alpha_V]."""
@@ -98,6 +106,43 @@ class ConformanceModel:
 
     def with_joints(self, joints):
         return replace(self, joints=dict(joints))
+
+    def joint_inflation(self, joint):
+        """The inflation of ``joint``'s sets: its own (``joints.<name>.inflation`` in the file),
+        else the model's ``inflation`` (files written before per-joint inflation: one value for
+        every joint)."""
+        own = self.joints[joint].inflation
+        return float(self.inflation if own is None else own)
+
+    def inflations(self):
+        """``{joint: inflation}`` of every joint (:meth:`joint_inflation`)."""
+        return {n: self.joint_inflation(n) for n in self.joints}
+
+    def largest_inflation(self):
+        """The largest joint inflation: the model-level ``inflation`` the file records for
+        readers that apply one value to every joint (their sets only grow)."""
+        return max(self.inflations().values(), default=float(self.inflation))
+
+    def checked_xi(self, joint):
+        """The sets the monitor checks for ``joint``: the Theorem-1 parameter vector of its
+        identified W, V scaled by ``1 +`` its own inflation (:meth:`JointSets.xi`,
+        :meth:`joint_inflation`). The one place ``check``, ``replay``, the monitor and the
+        plots take a joint's checked sets from."""
+        return self.joints[joint].xi(self.joint_inflation(joint))
+
+    def with_inflation(self, inflation):
+        """This model with ``inflation`` applied: a number for every joint, or ``{joint:
+        number}`` for some (the others keep theirs). Each joint carries its value; the
+        model-level ``inflation`` becomes the largest (:meth:`largest_inflation`). The
+        calibration record is kept: a reader refuses it unless it is these values'
+        (:func:`require_calibrated_sets`)."""
+        per = dict(inflation) if isinstance(inflation, dict) else {n: inflation for n in self.joints}
+        unknown = sorted(set(per) - set(self.joints))
+        if unknown:
+            raise ReachsetError(f"inflation for joint {unknown[0]}, which is not in the model")
+        joints = {n: replace(j, inflation=_inflation(per.get(n, self.joint_inflation(n)), f"joint {n} inflation"))
+                  for n, j in self.joints.items()}
+        return replace(self, joints=joints, inflation=max(j.inflation for j in joints.values()))
 
 
 def plant_from_spec(spec):
@@ -161,15 +206,23 @@ def _fl(v):
     return [float(x) for x in v]
 
 
+def _inflation(v, name, source="model"):
+    x = _floats(v, name, 1)[0]
+    if x < 0:
+        raise ReachsetError(f"{source}: {name} must be >= 0, got {x:g}")
+    return x
+
+
 def to_dict(model: ConformanceModel) -> dict:
     return {
         "format": FORMAT,
         "plant": model.plant_spec,
         "estimator": model.estimator.as_dict(),
         "horizon": int(model.horizon),
-        "inflation": float(model.inflation),
+        "inflation": model.largest_inflation(),     # for readers of one inflation: the largest (docs/theory.md)
         "joints": {name: {"alpha_w": _fl(j.alpha_w), "alpha_v": _fl(j.alpha_v),
                           "c_w": _fl(j.c_w), "c_v": _fl(j.c_v),
+                          **({"inflation": float(j.inflation)} if j.inflation is not None else {}),
                           "test_cases": int(j.test_cases), "horizon": int(j.horizon),
                           **({"gains": j.gains} if j.gains else {}),
                           **({"extra": j.extra} if j.extra else {})}
@@ -198,9 +251,7 @@ def from_dict(d, source="model") -> ConformanceModel:
     horizon = _int(d.get("horizon", 125), "horizon")
     if not 0 <= horizon <= MAX_HORIZON:
         raise ReachsetError(f"{source}: horizon must be in [0, {MAX_HORIZON}], got {horizon}")
-    inflation = _floats(d.get("inflation", 0.0), "inflation", 1)[0]
-    if inflation < 0:
-        raise ReachsetError(f"{source}: inflation must be >= 0")
+    inflation = _inflation(d.get("inflation", 0.0), "inflation", source)
     joints_in = d.get("joints")
     if not isinstance(joints_in, dict) or not joints_in:
         raise ReachsetError(f"{source}: no joints")
@@ -221,7 +272,10 @@ def from_dict(d, source="model") -> ConformanceModel:
             raise ReachsetError(f"{source}: joint {name}: gains must be a mapping")
         joints[str(name)] = JointSets(aw, av, cw, cv, _int(j.get("test_cases", 0), f"joint {name} test_cases"),
                                       _int(j.get("horizon", horizon), f"joint {name} horizon"), gains,
-                                      j.get("extra", {}) or {})
+                                      j.get("extra", {}) or {},
+                                      # its own inflation; a file without one (older): the model's (None)
+                                      inflation=None if j.get("inflation") is None else
+                                      _inflation(j["inflation"], f"joint {name} inflation", source))
     below = d.get("horizon_below_minimum", False)
     if not isinstance(below, bool):
         raise ReachsetError(f"{source}: horizon_below_minimum must be true or false, got {below!r}")
@@ -243,6 +297,10 @@ def from_dict(d, source="model") -> ConformanceModel:
                          input_source=_input_source(d.get("input_source"), source),
                          calibration=_calibration(d.get("calibration"), source))
     require_calibrated_sets(m, source=source)
+    if inflation != m.largest_inflation():
+        raise ReachsetError(f"{source}: inflation {inflation:g} is not the largest of its joints' own inflations "
+                            f"({m.largest_inflation():g}): each joint's inflation is the one checked; the model-level "
+                            "value is their largest, for readers of one inflation")
     return m
 
 
@@ -367,12 +425,13 @@ def sets_digest(model: ConformanceModel):
 
 def calibration_record(model: ConformanceModel, *, method, **details):
     """The model's ``calibration`` block: ``method`` (``cross_validation`` or
-    ``held_out_bags``), the model's inflation and the digest of the sets it was calibrated
-    for (:func:`sets_digest` of ``model``, which must already hold its final sets and
-    inflation), and ``details`` (folds, grid, per joint values, the rule that made the fold
-    sets)."""
-    return {"method": str(method), "inflation": float(model.inflation), "sets_sha256": sets_digest(model),
-            **details}
+    ``held_out_bags``), the inflation applied to each joint (``inflations``; ``inflation``: the
+    largest, as records before per-joint inflation had it) and the digest of the sets it was
+    calibrated for (:func:`sets_digest` of ``model``, which must already hold its final sets
+    and inflations), and ``details`` (folds, grid, per joint values before any margin
+    ``per_joint``, the rule that made the fold sets)."""
+    return {"method": str(method), "inflation": model.largest_inflation(), "inflations": model.inflations(),
+            "sets_sha256": sets_digest(model), **details}
 
 
 def with_calibration(model: ConformanceModel, *, method, **details):
@@ -386,6 +445,12 @@ def _calibration(v, source):
     if not isinstance(v, dict) or not isinstance(v.get("sets_sha256"), str) or "inflation" not in v:
         raise ReachsetError(f"{source}: calibration must be a mapping with sets_sha256 and inflation")
     _floats(v["inflation"], "calibration inflation", 1)
+    per = v.get("inflations")
+    if per is not None:
+        if not isinstance(per, dict):
+            raise ReachsetError(f"{source}: calibration inflations must be a mapping joint -> inflation")
+        for n, x in per.items():
+            _floats(x, f"calibration inflation of joint {n}", 1)
     return dict(v)
 
 
@@ -406,9 +471,17 @@ def require_calibrated_sets(model: ConformanceModel, *, source):
                             f"(calibration sets_sha256 {rec['sets_sha256'][:12]}, the model's sets "
                             f"{sets_digest(model)[:12]}); calibrate these sets (identify --calibrate, or "
                             "workflows.calibrate.calibrate_model for a synthesis) or drop the calibration record")
+    # per joint (a record written before per-joint inflation: its one inflation for every joint)
+    want = rec.get("inflations") or {n: rec["inflation"] for n in model.joints}
+    for n in model.joints:
+        have = model.joint_inflation(n)
+        if n not in want or float(want[n]) != have:
+            cal = "none" if n not in want else f"{float(want[n]):g}"
+            raise guarantees.refused("G18", f"{source}: joint {n}: inflation {have:g} is not the calibrated {cal} of its "
+                                            "calibration record")
     if float(rec["inflation"]) != float(model.inflation):
-        raise guarantees.refused("G18", f"{source}: inflation {model.inflation:g} is not the calibrated {float(rec['inflation']):g} "
-                            "of its calibration record")
+        raise guarantees.refused("G18", f"{source}: inflation {model.inflation:g} is not the calibrated "
+                                        f"{float(rec['inflation']):g} of its calibration record")
 
 
 def load(path) -> ConformanceModel:

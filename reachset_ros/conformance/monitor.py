@@ -86,7 +86,7 @@ class MonitorModel:
     @classmethod
     def from_model(cls, model, joint, thm=None):
         thm = thm or model.theorem1()
-        offs = thm.offsets(model.joints[joint].xi(model.inflation))
+        offs = thm.offsets(model.checked_xi(joint))
         return cls(joint, model.plant, model.estimator, model.horizon, thm.normals,
                    tuple(o[0] for o in offs), tuple(o[1] for o in offs))
 

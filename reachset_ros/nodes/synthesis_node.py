@@ -74,7 +74,7 @@ def certify_synthesis(data, model_file):
     """Empty when every synthesised joint's R*_u is inside U_p for the model it will run with.
 
     Per joint of ``data["joints"]`` (``reachset synthesize --json``): the model file's gains
-    and sets, its ``inflation`` (the sets the monitor checks are scaled by ``1 + inflation``),
+    and sets, the joint's ``inflation`` (the sets the monitor checks are scaled by ``1 + inflation``),
     ``U_ff`` and the recorded ``U_e,ff`` (:func:`~reachset_ros.systems.gains.certify`, with the
     joint's ``u_max`` and ``u_ff``). Otherwise the reason, one line, naming the joint.
     """
@@ -84,7 +84,7 @@ def certify_synthesis(data, model_file):
             js = model.joints.get(name)
             if js is None:
                 return f"joint {name}: not in the model {model_file}"
-            c = certify(Gains.from_model(js.gains), js, model.inflation, float(j["u_max"]),
+            c = certify(Gains.from_model(js.gains), js, model.joint_inflation(name), float(j["u_max"]),
                         float(j.get("u_ff", 2.0)), plant=model.plant)
             if not c.ok:
                 return f"joint {name}: {c.reason}"

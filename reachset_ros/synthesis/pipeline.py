@@ -174,7 +174,7 @@ class BagSynthesis:
     minimum_horizon: int = None         # the plant's minimum k* (kernels.minimum_horizon)
     horizon_below_minimum: bool = False  # k* accepted below it (allow_weak_horizon)
     reference_class: object = None      # ReferenceClass used instead of/over the recorded references
-    inflation: float = 0.0              # the model's inflation: R*_e, R*_u are for the inflated sets
+    inflation: object = 0.0             # float or {joint: float}: R*_e, R*_u are for the inflated sets
     initial_state_set: bool = False     # Theorem 1 with the estimator's initial-state set (Theorem1.build)
     sha256: tuple = None                # the bags' hashes when a fleet's workers computed them
     input_source: dict = None           # how the bags' u_p was computed (conformance.model.input_source_of)
@@ -185,7 +185,9 @@ class BagSynthesis:
              "horizon": self.horizon, "minimum_horizon": self.minimum_horizon,
              "horizon_below_minimum": self.horizon_below_minimum,
              "reference_class": self.reference_class.as_dict() if self.reference_class is not None else None,
-             "inflation": float(self.inflation), "initial_state_set": bool(self.initial_state_set)}
+             "inflation": max((float(r.inflation) for r in self.results.values()), default=0.0),
+             "inflations": {n: float(r.inflation) for n, r in self.results.items()},   # per joint (issue 35.1)
+             "initial_state_set": bool(self.initial_state_set)}
         if self.space is not None:
             d.update(observer=self.space.observer, controller=self.space.controller, free=list(self.space.free),
                      search_box={n: list(self.space.bounds[n]) for n in self.space.free})
@@ -198,9 +200,11 @@ class BagSynthesis:
             joints[n] = mdl.JointSets(alpha_w=tuple(r.alpha_w.tolist()), alpha_v=tuple(r.alpha_v.tolist()),
                                       c_w=tuple(r.c_w.tolist()), c_v=tuple(r.c_v.tolist()), test_cases=r.test_cases,
                                       horizon=self.horizon, gains=r.gains(),
-                                      extra={"reference_error": r.reference, "conformant": r.conformant})
+                                      extra={"reference_error": r.reference, "conformant": r.conformant},
+                                      inflation=float(r.inflation))     # the inflation its R*_u is certified for
         return mdl.ConformanceModel(plant=self.plant, plant_spec=self.plant_spec, estimator=self.estimator,
-                                    horizon=self.horizon, joints=joints, inflation=float(self.inflation),
+                                    horizon=self.horizon, joints=joints,
+                                    inflation=max((j.inflation for j in joints.values()), default=0.0),
                                     provenance=mdl.provenance(self.bags, command, self.sha256),
                                     minimum_horizon=self.minimum_horizon,
                                     horizon_below_minimum=self.horizon_below_minimum,
@@ -240,8 +244,8 @@ class SynthesisOptions:
         More :func:`reachset_ros.bags.read_joint_series` options (``effort``, ``joint_names``).
     inflation : float, optional
         The monitor checks the sets scaled by ``1 + inflation``; R*_u inside U_p is enforced
-        and R*_e reported for those sets, and the model records it. Default 0 (reidentify: the
-        model's).
+        and R*_e reported for those sets, and the model records it (every joint). Default 0
+        (reidentify: each joint's own inflation in the model).
     initial_state_set : bool, optional
         Theorem 1 with the estimator's initial-state set
         (:meth:`reachset_ros.conformance.theorem1.Theorem1.build`); recorded in the model.
@@ -298,7 +302,7 @@ class SynthesisPlan:
     gains: dict | None
     model_classes: dict
     space: object
-    inflation: float
+    inflation: object           # float (every joint) or {joint: float} (reidentify: the model's per joint)
     initial_state_set: bool
     minimum_horizon: int
     horizon_below_minimum: bool
@@ -350,7 +354,7 @@ def plan(bags, options: SynthesisOptions):
             if n not in base.joints:
                 raise ReachsetError(f"joint {n} is not in the model {o.model}")
         space = None
-        inflation = base.inflation if o.inflation is None else o.inflation
+        inflation = base.inflations() if o.inflation is None else o.inflation
         initial_state_set = base.initial_state_set if o.initial_state_set is None else o.initial_state_set
     else:
         if o.model:
@@ -365,9 +369,11 @@ def plan(bags, options: SynthesisOptions):
         inflation, initial_state_set = o.inflation, o.initial_state_set
     if horizon < 0:
         raise ReachsetError("horizon must be >= 0")
-    inflation = 0.0 if inflation is None else float(inflation)
-    if not (math.isfinite(inflation) and inflation >= 0):
-        raise ReachsetError(f"inflation must be finite and >= 0, got {inflation}")
+    inflation = 0.0 if inflation is None else inflation
+    inflation = ({n: float(x) for n, x in inflation.items()} if isinstance(inflation, dict) else float(inflation))
+    for x in (inflation.values() if isinstance(inflation, dict) else (inflation,)):
+        if not (math.isfinite(x) and x >= 0):
+            raise ReachsetError(f"inflation must be finite and >= 0, got {x}")
     k_min, weak = cf.require_minimum_horizon(plant, horizon, o.allow_weak_horizon)
     initial_state_set = True if initial_state_set is None else bool(initial_state_set)
     thm = cf.Theorem1.build(plant, horizon, est if initial_state_set else None)

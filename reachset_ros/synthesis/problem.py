@@ -265,7 +265,8 @@ def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, referen
                          reference_class=None, inflation=0.0, devs=None, checker=None):
     """:class:`JointProblem` per joint of ``{name: JointSeries}``; ``u_max``: float or dict;
     ``reference_class``: a :class:`ReferenceClass` for all joints, a dict per joint, or None;
-    ``inflation``: the monitored sets' inflation the guarantee is computed for (all joints).
+    ``inflation``: the monitored sets' inflation the guarantee is computed for: float (all joints)
+    or dict per joint (a model's own, issue 35.1).
     ``devs``: ``{name: Deviations}`` instead of ``series`` (None then), with ``checker`` (a
     fleet run, :meth:`JointProblem.check`)."""
     thm = thm or cf.Theorem1.build(plant, horizon)
@@ -279,6 +280,7 @@ def problems_from_series(series, plant, estimator, horizon, u_max, u_ff, referen
         out.append(JointProblem.prepare(name, plant, estimator, y, u, segments, horizon=horizon, u_max=um, u_ff=u_ff,
                                         thm=thm, references=refs, reference_method=reference_method,
                                         alpha_lower=alpha_lower, stamps=stamps, reference_class=rc,
-                                        inflation=inflation, devs=None if devs is None else devs[name],
+                                        inflation=float(inflation[name] if isinstance(inflation, dict) else inflation),
+                                        devs=None if devs is None else devs[name],
                                         checker=checker))
     return out

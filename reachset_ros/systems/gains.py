@@ -436,7 +436,8 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
     For each joint the pair (its observer and its feedback law, one :class:`Gains`) must give
     a stable closed loop with the model's plant, and where the model has the joint's sets its
     R*_u must stay inside U_p for the sets the monitor checks (:func:`certify`, with the
-    model's inflation and recorded U_e,ff). A joint no model covers (no model, or not in it)
+    joint's own inflation, :meth:`~reachset_ros.conformance.model.ConformanceModel.joint_inflation`,
+    and recorded U_e,ff). A joint no model covers (no model, or not in it)
     has no certificate: refused unless ``allow_uncertified``, which runs it on stability alone
     and is reported (``uncertified``). The observer node and the controller node both call
     this (start-up and every parameter change), with the same parameters (the synthesis node
@@ -485,7 +486,7 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
         js = model.joints.get(j) if model is not None else None
         if js is not None:
             ue = u_e_ff_for(g, js, model.plant, u_ff) if u_e_ff_for is not None else None
-            c = certify(g, js, model.inflation, float(u_max[i]), u_ff, u_e_ff=ue, plant=model.plant)
+            c = certify(g, js, model.joint_inflation(j), float(u_max[i]), u_ff, u_e_ff=ue, plant=model.plant)
             if not c.ok:
                 raise guarantees.refused(c.row, f"joint {j}: {c.reason}")
             certified[j] = c

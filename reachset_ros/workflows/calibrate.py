@@ -21,7 +21,7 @@ other sets.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -48,9 +48,10 @@ class CalibratedModel:
     per-joint details (``joints``)."""
 
     model: mdl.ConformanceModel
-    calibrated: float
+    calibrated: float               # the largest over the joints
     joints: dict
     rule: dict
+    calibrated_per_joint: dict = None   # {joint: inflation the folds or bags needed}, before margin and floor
 
 
 def _re_weights(model, name):
@@ -120,11 +121,12 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     grid : sequence of float, optional
         Inflations tried (default :data:`~reachset_ros.workflows.identify.DEFAULT_GRID`).
     margin : int
-        Grid steps above the cross-validated inflation (``--calibrate-margin``).
-    floor : float
-        The model's inflation is at least this (e.g. the inflation the gains were synthesised
-        for): a larger inflation only grows the sets, so the folds that held at the calibrated
-        value still hold; the record keeps both (``calibrated_inflation``, ``floor``).
+        Grid steps above each joint's cross-validated inflation (``--calibrate-margin``).
+    floor : float or dict
+        Each joint's inflation is at least this (a number for every joint or ``{joint:
+        number}``; e.g. the inflation the gains were synthesised for): a larger inflation only
+        grows the sets, so the folds that held at the calibrated value still hold; the record
+        keeps both (``calibrated_inflation``, ``per_joint``, ``floor``).
     topics, reader
         How the bags are read; u_p must be computed as the model's was
         (:func:`~reachset_ros.conformance.model.require_input_source`).
@@ -132,6 +134,7 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     Returns
     -------
     CalibratedModel
+        Each joint carries its own calibrated inflation (issue 35.1).
     """
     if (folds is None) == (validate_bags is None):
         raise ReachsetError("calibrate_model: give folds (cross-validation) or validate_bags (held-out), not both")
@@ -139,22 +142,24 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     g = inflation_grid(grid)
     if validate_bags is not None:
         vseries = _series(model, validate_bags, topics, reader)
-        inflation, per = validate(model.plant, model.estimator, horizon=model.horizon, thm=model.theorem1(),
-                                  joints=model.joints, vseries=vseries, grid=g, fault_accel=fault_accel)
+        chosen, per = validate(model.plant, model.estimator, horizon=model.horizon, thm=model.theorem1(),
+                               joints=model.joints, vseries=vseries, grid=g, fault_accel=fault_accel)
         rule = {"sets": "the model's own sets"}
-        out = replace(model, inflation=float(inflation))
-        out = mdl.with_calibration(out, method="held_out_bags", inflation_grid=list(g), rule=rule,
-                                   bags=[str(b) for b in validate_bags])
-        return CalibratedModel(model=out, calibrated=float(inflation), joints=per, rule=rule)
+        out = mdl.with_calibration(model.with_inflation(chosen), method="held_out_bags", inflation_grid=list(g),
+                                   rule=rule, bags=[str(b) for b in validate_bags])
+        return CalibratedModel(model=out, calibrated=max(chosen.values()), joints=per, rule=rule,
+                               calibrated_per_joint=dict(chosen))
     series = _series(model, bags, topics, reader)
     fit, rule = fold_rule(model)
     runs = {n: run_ranges(s.stamps, s.dt) for n, s in series.items()}
     calib = cross_validate(model.plant, model.estimator, series, horizon=model.horizon, k=folds, grid=g,
                            identify=fit, thm=model.theorem1(), runs=runs)
-    calibrated = max(c["inflation"] for c in calib.values())
-    inflation = max(calibrate_margin(calibrated, g, margin) if margin else calibrated, float(floor))
-    out = mdl.with_calibration(replace(model, inflation=float(inflation)), method="cross_validation",
-                               folds=int(folds), inflation_grid=list(g), calibrated_inflation=float(calibrated),
-                               margin_steps=int(margin), floor=float(floor), rule=rule,
-                               per_joint={n: float(c["inflation"]) for n, c in calib.items()})
-    return CalibratedModel(model=out, calibrated=float(calibrated), joints=calib, rule=rule)
+    per = {n: float(c["inflation"]) for n, c in calib.items()}
+    floors = dict(floor) if isinstance(floor, dict) else {n: float(floor) for n in per}
+    inflations = {n: max(calibrate_margin(x, g, margin) if margin else x, float(floors.get(n, 0.0)))
+                  for n, x in per.items()}
+    out = mdl.with_calibration(model.with_inflation(inflations), method="cross_validation",
+                               folds=int(folds), inflation_grid=list(g), calibrated_inflation=max(per.values()),
+                               margin_steps=int(margin), floor={n: float(x) for n, x in floors.items()},
+                               rule=rule, per_joint=per)
+    return CalibratedModel(model=out, calibrated=max(per.values()), joints=calib, rule=rule, calibrated_per_joint=per)

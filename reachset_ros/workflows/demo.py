@@ -180,25 +180,30 @@ class _Story:
         sets it checks. ``calibrate``: that inflation was calibrated on identify's sets, so it is
         calibrated again on the synthesised sets the monitor checks (issue 34.11,
         :func:`reachset_ros.workflows.calibrate.calibrate_model`, 2 folds of the training
-        recordings; the model records it); the monitor's inflation is the larger of the two. The certificate is checked again here
-        (systems.gains.certify); if it did not cover the inflation the demo says so (NOT
-        CERTIFIED) and records it."""
+        recordings; the model records it); each joint's inflation is the larger of its two values
+        (issue 35.1: per joint, at most the one the gains were synthesised for when the joint's own
+        recalibration needs no more). The certificate is checked again here, per joint, for the
+        joint's own inflation (systems.gains.certified_inflation); if it did not cover the
+        inflation the demo says so (NOT CERTIFIED) and records it."""
         out, workdir = self.out, self.workdir
         monitor_model = workdir / "monitor_model.yaml"
         synthesized = mdl.load(res.result.model_file)
-        monitor = replace(synthesized, inflation=float(inflation), calibration=None)    # a given inflation
+        monitor = replace(synthesized.with_inflation(float(inflation)), calibration=None)    # a given inflation
         if calibrate:
-            # at least the inflation the gains were synthesised for (a larger one only grows the sets)
+            # per joint at least its inflation calibrated on identify's sets (the synthesis was for
+            # the largest of them, so each is certified; a larger one only grows the sets)
+            floor = (out.get("inflation_calibration") or {}).get("per_joint") or float(inflation)
             cm = run_in_worker(calibrate_model, synthesized, bags=[str(b) for b in self.training_bags], folds=2,
-                               floor=float(inflation))
-            monitor, inflation = cm.model, cm.model.inflation
+                               floor=floor)
+            monitor, inflation = cm.model, cm.model.largest_inflation()
             self.log(f"[demo] inflation calibrated again on the synthesised sets the monitor checks: "
                      f"{cm.calibrated:g}; the monitor's {inflation:g}")
             out.setdefault("inflation_calibration", {})["monitor_sets"] = {
                 "calibrated": cm.calibrated, "inflation": float(inflation),
                 "per_joint": cm.model.calibration["per_joint"], "rule": cm.rule["sets"]}
-        used, per_joint = certified_inflation(synthesized, float(inflation))
-        if used < float(inflation):
+        _, per_joint = certified_inflation(synthesized, float(inflation))
+        certified = all(monitor.joint_inflation(j) <= per_joint[j] for j in per_joint)
+        if not certified:
             self.log(f"[demo] NOT CERTIFIED: the monitor's inflation {inflation:g} is beyond the R*_u certificate "
                      f"of the synthesised gains (largest certified per joint: "
                      + ", ".join(f"{j} {v:.4g}" for j, v in per_joint.items())
@@ -214,8 +219,9 @@ class _Story:
         out["monitor_model"] = str(monitor_model)
         out["inflation_requested"] = float(inflation)
         out["inflation_certified"] = per_joint
-        out["inflation_is_certified"] = bool(used >= float(inflation))
+        out["inflation_is_certified"] = bool(certified)
         out["inflation"] = float(inflation)
+        out["inflations"] = monitor.inflations()    # each joint's, the monitor's sets (issue 35.1)
         out["margin"] = out["inflation"]   # deprecated name of "inflation", kept for readers of old results
 
     def monitored_run(self, *, record, duration, fault_at, fault):

@@ -108,7 +108,7 @@ class IdentifyResult:
     file's :class:`~reachset_ros.conformance.model.JointSets`.
     """
 
-    inflation: float
+    inflation: float                # the largest joint inflation (the model file's model-level value)
     joints: dict
     model_sets: dict
     data: dict
@@ -123,6 +123,7 @@ class IdentifyResult:
     calibration: dict | None = None
     validation_data: dict | None = None
     model: str | None = None
+    inflations: dict = field(default_factory=dict)   # per joint, the inflation the model applies
 
     def to_json(self):
         """The ``reachset identify --json`` object."""
@@ -163,7 +164,7 @@ class IdentifyResult:
                              f"{c['runs']} runs; per fold " + ", ".join(str(f["chosen_inflation"]) for f in c["folds"])
                              + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
         if self.validation_data is not None or self.calibration is not None:
-            lines.append(f"model inflation: {self.inflation}")
+            lines.append("model inflation per joint: " + ", ".join(f"{n} {x:g}" for n, x in self.inflations.items()))
         return "\n".join(lines) + (f"\nmodel written to {self.model}" if self.model else "")
 
 
@@ -244,7 +245,9 @@ def inflation_grid(values):
 
 
 def validate(plant, est, *, horizon, thm, joints, vseries, grid, fault_accel):
-    """Held-out validation of identified joints; returns (inflation, {name: validation dict})."""
+    """Held-out validation of identified joints; returns ({name: inflation}, {name: validation
+    dict}): each joint's inflation is its own smallest conformant grid value (issue 35.1), at
+    which its test fault is injected."""
     per = {}
     for name, js in joints.items():
         s = vseries[name]
@@ -254,14 +257,14 @@ def validate(plant, est, *, horizon, thm, joints, vseries, grid, fault_accel):
         except ReachsetError as e:
             raise ReachsetError(f"joint {name}: validation: {e}") from None
         per[name] = (rows, chosen, flagged)
-    inflation = max(c for _, c, _ in per.values())
     out = {}
     for name, (rows, chosen, flagged) in per.items():
         s = vseries[name]
         for r in rows:
             t = r.pop("first_violation_tick")
             r["first_violation_ns"] = int(s.stamps[t]) if t >= 0 else None
-        model_row = next(r for r in rows if r["inflation"] == inflation)   # same grid for all joints
+        inflation = chosen                              # this joint's own (per-joint inflation)
+        model_row = next(r for r in rows if r["inflation"] == inflation)
         try:
             fault = detection_delay(plant, thm, est, joints[name].xi(inflation), s.y, s.u, segments=s.segments,
                                     horizon=horizon, accel=fault_accel, dt=plant.dt)
@@ -279,7 +282,7 @@ def validate(plant, est, *, horizon, thm, joints, vseries, grid, fault_accel):
                      "at_model_inflation": {k: model_row[k] for k in
                                             ("violating_ticks", "violation_rate", "violated_test_cases")},
                      "fault": fault}
-    return inflation, out
+    return {n: v["model_inflation"] for n, v in out.items()}, out
 
 
 def check_options(o: IdentifyOptions):
@@ -367,7 +370,8 @@ def _provenance(o: IdentifyOptions, *, data, grid, calib, inflation):
     if calib is not None:
         prov["calibration"] = {"folds": o.calibrate, "inflation_grid": grid,
                                "inflation": {n: c["inflation"] for n, c in calib.items()},
-                               "margin_steps": o.calibrate_margin, "model_inflation": inflation,
+                               "margin_steps": o.calibrate_margin, "model_inflation": max(inflation.values()),
+                               "model_inflations": dict(inflation),
                                "flagged": [n for n, c in calib.items() if c["flagged"]]}
     return prov
 
@@ -424,32 +428,35 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                                    thm=thm, cost=o.cost, method=o.method, devs=data.devs)
     joints = {n: model_joint_sets(sets, dev, o.horizon) for n, (sets, dev, _) in results.items()}
     js = {n: _joint_json(sets, dev, settled, o.horizon) for n, (sets, dev, settled) in results.items()}
-    inflation = 0.0 if o.inflation is None else float(o.inflation)
+    inflations = {n: 0.0 if o.inflation is None else float(o.inflation) for n in joints}   # --inflation F: all
     calib = calibrated = None
     if o.calibrate is not None:
         calib = _calibrate(o, plant=plant, est=est, thm=thm, series=data.series, grid=grid)
+        # per joint (issue 35.1): its own cross-validated value, --calibrate-margin steps above it
+        inflations = {n: calibrate_margin(c["inflation"], grid, o.calibrate_margin) if o.calibrate_margin
+                      else float(c["inflation"]) for n, c in calib.items()}
         for name, c in calib.items():
-            js[name]["inflation"] = c["inflation"]
-            js[name]["calibration"] = c
-        inflation = calibrated = max(c["inflation"] for c in calib.values())
-        if o.calibrate_margin:
-            inflation = calibrate_margin(calibrated, grid, o.calibrate_margin)
+            js[name]["inflation"] = inflations[name]          # the value the model applies to this joint
+            js[name]["calibration"] = c                       # c["inflation"]: cross-validated, before any margin
+        calibrated = max(c["inflation"] for c in calib.values())
     if vseries is not None:
-        inflation, val = validate(plant, est, horizon=o.horizon, thm=thm, joints=joints, vseries=vseries, grid=grid,
-                                  fault_accel=o.fault_accel)
+        inflations, val = validate(plant, est, horizon=o.horizon, thm=thm, joints=joints, vseries=vseries, grid=grid,
+                                   fault_accel=o.fault_accel)
         for name, v in val.items():
             js[name]["validation"] = v
+            js[name]["inflation"] = inflations[name]
     model = None
     if o.out is not None:
-        prov = _provenance(o, data=data, grid=grid, calib=calib, inflation=inflation)
+        prov = _provenance(o, data=data, grid=grid, calib=calib, inflation=inflations)
         m = mdl.ConformanceModel(plant=plant, plant_spec={"kind": "lwa4p_joint", "dt": o.dt}, estimator=est,
-                                 horizon=o.horizon, joints=joints, inflation=inflation, provenance=prov,
+                                 horizon=o.horizon, joints=joints, provenance=prov,
                                  minimum_horizon=k_min, horizon_below_minimum=weak,
                                  initial_state_set=bool(o.initial_state_set),
-                                 input_source=mdl.input_source_of((o.reader or {}).get("effort")))
+                                 input_source=mdl.input_source_of((o.reader or {}).get("effort"))
+                                 ).with_inflation(inflations)
         mdl.save(_with_calibration(m, o, grid=grid, calib=calib, calibrated=calibrated), o.out)
         model = str(o.out)
-    return IdentifyResult(inflation=inflation, joints=js, model_sets=joints, data=data.report.as_dict(), cost=o.cost,
+    return IdentifyResult(inflation=max(inflations.values()), inflations=inflations, joints=js, model_sets=joints, data=data.report.as_dict(), cost=o.cost,
                           method=o.method, horizon=o.horizon, minimum_horizon=k_min, horizon_below_minimum=weak,
                           initial_state_set=bool(o.initial_state_set), calibrate=o.calibrate,
                           calibrated_inflation=calibrated, calibration=calib,

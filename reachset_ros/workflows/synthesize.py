@@ -73,12 +73,15 @@ def calibrated_model(bs: BagSynthesis, model, *, folds, topics=None, reader=None
     cross-validation of the bags, read as the synthesis read them (``topics``, ``reader``)
     (issue 34.11, :func:`reachset_ros.workflows.calibrate.calibrate_model`), and the ``--json``
     ``calibration`` object; ``certified`` says whether the gains' R*_u certificate (for the
-    synthesis' ``inflation``) covers the calibrated inflation."""
+    synthesis' ``inflation``) covers the calibrated inflation, joint by joint (each joint's own
+    calibrated inflation against the one its R*_u was synthesised for, issue 35.1)."""
     from .calibrate import calibrate_model
     cm = calibrate_model(model, bags=list(bs.bags), folds=folds, topics=topics or _TOPICS, reader=reader)
-    info = {"inflation": cm.model.inflation, "folds": int(folds), "rule": cm.rule["sets"],
-            "per_joint": cm.model.calibration["per_joint"], "synthesised_for_inflation": float(bs.inflation),
-            "certified": bool(cm.model.inflation <= bs.inflation)}
+    synthesised = {n: float(r.inflation) for n, r in bs.results.items()}
+    info = {"inflation": cm.model.largest_inflation(), "inflations": cm.model.inflations(), "folds": int(folds),
+            "rule": cm.rule["sets"], "per_joint": cm.model.calibration["per_joint"],
+            "synthesised_for_inflation": max(synthesised.values()), "synthesised_for_inflations": synthesised,
+            "certified": all(cm.model.joint_inflation(n) <= x for n, x in synthesised.items())}
     return cm.model, info
 
 

@@ -219,13 +219,16 @@ def test_cli_cost_method_validate(tmp_path, held_out):
         assert set(v) >= {"at_zero", "grid", "chosen_inflation", "flagged", "model_inflation", "fault",
                           "checked_ticks", "at_model_inflation"}
         assert v["checked_ticks"] == 3000 - Estimator("fd").history
-        assert v["model_inflation"] == infl >= v["chosen_inflation"] and not v["flagged"]
+        # per joint its own smallest conformant inflation (issue 35.1); the model-level is the largest
+        assert v["model_inflation"] == v["chosen_inflation"] == j["inflation"] <= infl and not v["flagged"]
         assert v["at_model_inflation"]["violating_ticks"] == 0
         assert v["fault"]["detected"] and v["fault"]["delay_ticks"] >= 0 and v["fault"]["accel"] == 5.0
         assert v["fault"]["onset_ns"] > T0
     assert infl > 0 and max(res["joints"][n]["validation"]["at_zero"]["violating_ticks"] for n in names) > 0
     saved = yaml.safe_load(model.read_text())
     assert saved["inflation"] == infl and len(saved["provenance"]["validation"]["bags"]) == 1
+    assert infl == max(res["joints"][n]["inflation"] for n in names)
+    assert {n: saved["joints"][n]["inflation"] for n in names} == {n: res["joints"][n]["inflation"] for n in names}
     chk = json.loads(run_cli("check", val, "--model", model, "--json").stdout)
     assert chk["conformant"]
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from reachset_ros.bags import read_messages
+from reachset_ros.conformance import model as mdl
 from reachset_ros.commands.demo import rate_hz
 import pytest
 
@@ -63,6 +64,11 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     assert ms["rule"] == "synthesis_min_re_norm", cal
     assert res["inflation_is_certified"] is True, res["inflation_certified"]
     assert all(v >= res["inflation"] for v in res["inflation_certified"].values()), res["inflation_certified"]
+    # issue 35.1: each joint's own inflation, at least its value calibrated on identify's sets, the
+    # model-level value their largest; the monitor's model carries them
+    per = res["inflations"]
+    assert max(per.values()) == res["inflation"] and all(per[n] >= v for n, v in cal["per_joint"].items()), per
+    assert mdl.load(res["monitor_model"]).inflations() == per
     # the guarantee (issue 16.3): omega strictly inside its search box on every joint, every
     # judged tick (after the transient, before the fault) inside R*_e, detection <= 50 ms
     g = res["guarantee"]
