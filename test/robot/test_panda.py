@@ -31,7 +31,7 @@ def cli(*args, code=0):
 @pytest.fixture(scope="module")
 def panda(tmp_path_factory):
     d = tmp_path_factory.mktemp("panda")
-    sim = cli("simulate", "--robot", ROBOT, "--joints", ARM, "--seconds", 24, "--seed", 1, "--out", d / "train",
+    sim = cli("simulate", "--robot", ROBOT, "--joints", ARM, "--seconds", 26, "--seed", 1, "--out", d / "train",
               "--json")
     fault = cli("simulate", "--robot", ROBOT, "--joints", ARM, "--seconds", 8, "--seed", 2, "--out", d / "fault",
                 "--fault", "payload", "--fault-at", 5, "--fault-magnitude", 3, "--json")
