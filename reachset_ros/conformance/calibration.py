@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import guarantees
 from ..errors import ReachsetError
 from .validation import validation_grid
 
@@ -87,7 +88,7 @@ def _require_fold_size(name, segs, folds, *, k, horizon, dt, n_blocks, n_runs):
     ticks = [sum(b - a for (a, b), g in zip(segs, folds) if g == f) for f in range(k)]
     f = int(np.argmin(ticks))
     if ticks[f] < need:
-        raise ReachsetError(f"--calibrate {k}: fold {f} of joint {name} holds {ticks[f]} samples "
+        raise guarantees.refused("G20", f"--calibrate {k}: fold {f} of joint {name} holds {ticks[f]} samples "
                             f"({ticks[f] * dt:.2f} s; {n_runs} runs cut into {n_blocks} blocks for {k} folds), a fold "
                             f"needs at least {MIN_FOLD_HORIZONS} horizons of k*+1 = {int(horizon) + 1} samples "
                             f"({need} samples, {need * dt:.2f} s): record more or use fewer folds")

@@ -69,7 +69,8 @@ def test_calibrate_refuses_folds_too_small_to_mean_anything(tmp_path, capsys):
     code, out, err = run(["identify", bag, "--horizon", H, "--calibrate", 3, "--out", tmp_path / "m.yaml"], capsys)
     assert_one_line_error(code, out, err, "identify",
                           ["--calibrate 3: fold", "holds 150 samples (0.60 s; 1 runs cut into 3 blocks for 3 folds)",
-                           f"at least {MIN_FOLD_HORIZONS} horizons of k*+1 = {H + 1} samples ({need} samples, 0.84 s)"])
+                           f"at least {MIN_FOLD_HORIZONS} horizons of k*+1 = {H + 1} samples ({need} samples, 0.84 s)",
+                           "fewer folds [guarantee G20: "])
     assert not (tmp_path / "m.yaml").exists()
     res = run_json(["identify", bag, "--horizon", H, "--calibrate", 2], capsys)        # 300 samples a fold: enough
     assert all(j["calibration"]["blocks"] == 2 for j in res["joints"].values())
