@@ -327,13 +327,14 @@ class TrajectoryPlayer:
         self.hold_index = None
         self.parked = None
         self.restarts = 0
+        self._last_tau = -1.0
         rest = np.all((np.abs(traj.qd) <= REST_TOL) & (np.abs(traj.qdd) <= REST_TOL), axis=1)
         self._rest = np.flatnonzero(rest)
 
     @property
     def done(self) -> bool:
         """Whether the last stamp seen was at or after the file's end (or the file was abandoned)."""
-        return self.parked is not None or getattr(self, "_last_tau", -1.0) >= self.traj.t[-1]
+        return self.parked is not None or self._last_tau >= self.traj.t[-1]
 
     def restart(self, stamp_ns: int, q, rest_s: float = 1.0):
         self.restarts += 1

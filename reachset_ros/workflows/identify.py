@@ -135,7 +135,8 @@ class IdentifyResult:
             out["validation_data"] = self.validation_data
         if self.model is not None:
             out["model"] = self.model
-        if self.coverage is not None:
+        if self.coverage is not None:     # beside "joints": a fleet's joints are the same to the bit, without it
+            out["coverage"] = self.coverage
             out["thin_coverage"] = sorted(n for n, c in self.coverage.items() if c["thin"])
         return out
 
@@ -432,8 +433,6 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
     if data.series is not None:     # a fleet's sweep returns no series: no coverage
         cov = class_coverage(data.series, bags=o.bags, qd_max=o.class_qd_max, qdd_max=o.class_qdd_max,
                              threshold=o.coverage_threshold)
-        for name, c in cov.items():
-            js[name]["coverage"] = c
     inflation = 0.0 if o.inflation is None else float(o.inflation)
     calib = calibrated = None
     if o.calibrate is not None:

@@ -38,12 +38,12 @@ def test_identify_reports_the_class_coverage_per_joint_and_warns_for_the_thin_on
     thin = [n for n in JOINT_NAMES if n not in EXCITED]
     assert res["thin_coverage"] == thin
     for n in EXCITED:
-        c = res["joints"][n]["coverage"]
+        c = res["coverage"][n]
         assert c["acceleration_source"] == "reference" and c["max_abs_acceleration"] == pytest.approx(2.0)
         assert 0.95 <= c["velocity_fraction"] <= 1.2 and not c["thin"], c
         assert c["position_range"][1] - c["position_range"][0] > 1.0
     for n in thin:
-        c = res["joints"][n]["coverage"]
+        c = res["coverage"][n]
         assert c["thin"] and c["velocity_fraction"] < 0.8 and c["max_abs_acceleration"] == 0.0, c
     lines = err.strip().splitlines()
     assert len(lines) == len(thin), err
