@@ -29,7 +29,7 @@ from ..conformance.theorem1 import Theorem1, deviation_extremes_many
 from ..conformance.validation import detection_delay, validation_grid
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
-from .coverage import class_coverage
+from .coverage import class_coverage, series_motion
 
 __all__ = ["DEFAULT_GRID", "IdentifyOptions", "IdentifyResult", "calibrate_margin", "check_options", "identify",
            "identify_series", "inflation_grid", "model_joint_sets", "run_ranges", "validate"]
@@ -135,7 +135,7 @@ class IdentifyResult:
             out["validation_data"] = self.validation_data
         if self.model is not None:
             out["model"] = self.model
-        if self.coverage is not None:     # beside "joints": a fleet's joints are the same to the bit, without it
+        if self.coverage is not None:
             out["coverage"] = self.coverage
             out["thin_coverage"] = sorted(n for n, c in self.coverage.items() if c["thin"])
         return out
@@ -329,6 +329,7 @@ class _Data:
     devs: dict | None
     report: object
     sha256: tuple | None = None
+    motion: dict | None = None      # a fleet's merged motion extremes (coverage of the class)
 
 
 def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
@@ -339,7 +340,7 @@ def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
         return _Data(series=series, devs=None, report=report)
     with fleet:
         swept = fl.extremes(fleet, o.bags, fleet_read, fl.SweepSpec(plant, est, o.horizon, thm))
-    return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256)
+    return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256, motion=swept.motion)
 
 
 def _joint_json(sets, dev, settled, horizon):
@@ -429,10 +430,8 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                                    thm=thm, cost=o.cost, method=o.method, devs=data.devs)
     joints = {n: model_joint_sets(sets, dev, o.horizon) for n, (sets, dev, _) in results.items()}
     js = {n: _joint_json(sets, dev, settled, o.horizon) for n, (sets, dev, settled) in results.items()}
-    cov = None
-    if data.series is not None:     # a fleet's sweep returns no series: no coverage
-        cov = class_coverage(data.series, bags=o.bags, qd_max=o.class_qd_max, qdd_max=o.class_qdd_max,
-                             threshold=o.coverage_threshold)
+    motion = data.motion if data.series is None else series_motion(data.series, o.bags)
+    cov = class_coverage(motion, qd_max=o.class_qd_max, qdd_max=o.class_qdd_max, threshold=o.coverage_threshold)
     inflation = 0.0 if o.inflation is None else float(o.inflation)
     calib = calibrated = None
     if o.calibrate is not None:
