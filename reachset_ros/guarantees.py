@@ -46,6 +46,8 @@ ROWS = {
     "G17": "u_p is computed online as it was for identification (source, URDF, parameters)",
     "G18": "the inflation was calibrated on the sets the monitor checks",
     "G19": "the gains that run are certified for the sets the running monitor checks",
+    "G20": "the identification data cover the reference class on every joint, in calibration folds large enough "
+           "to judge",
 }
 
 

@@ -38,7 +38,9 @@ import sys
 from dataclasses import replace
 
 from .. import defaults
+
 from ..conformance.estimators import ESTIMATORS
+from ..workflows.coverage import warning_lines
 from ..workflows.identify import DEFAULT_GRID, IdentifyOptions, check_options, identify
 from . import emit
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
@@ -92,6 +94,15 @@ def add_arguments(p):
                         "sees more (docs/reliability.md, run-length margin)")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
                    help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
+    cov = defaults.table("identify.coverage")
+    p.add_argument("--class-qd-max", type=float, default=cov["qd_max"], metavar="V",
+                   help=f"the reference class' velocity limit the data's coverage is reported against, rad/s "
+                        f"(default {cov['qd_max']:g}, reference_node's qd_max)")
+    p.add_argument("--class-qdd-max", type=float, default=cov["qdd_max"], metavar="A",
+                   help=f"the reference class' acceleration limit u_ff, rad/s^2 (default {cov['qdd_max']:g})")
+    p.add_argument("--coverage-threshold", type=float, default=cov["threshold"], metavar="F",
+                   help=f"warn (stderr) for a joint whose data reach less than this share of the class' velocity "
+                        f"or acceleration (default {cov['threshold']:g}; record more with reachset excite)")
 
 
 def options_of(args):
@@ -105,7 +116,8 @@ def options_of(args):
         validate=None if args.validate is None else tuple(args.validate),
         inflation_grid=None if args.inflation_grid is None else tuple(args.inflation_grid),
         inflation=args.inflation, calibrate=args.calibrate, calibrate_margin=args.calibrate_margin,
-        fault_accel=args.fault_accel, command="reachset " + " ".join(sys.argv[1:]))
+        fault_accel=args.fault_accel, class_qd_max=args.class_qd_max, class_qdd_max=args.class_qdd_max,
+        coverage_threshold=args.coverage_threshold, command="reachset " + " ".join(sys.argv[1:]))
 
 
 def run(args):
@@ -117,4 +129,6 @@ def run(args):
     opts = replace(opts, out=out, reader=reader_options(args))
     read = None if fleet is None else read_spec(args, args.joints, args.dt)
     res = identify(opts, fleet=fleet, fleet_read=read)
+    for line in warning_lines(res.coverage or {}):
+        print(f"reachset identify: {line}", file=sys.stderr)
     emit(args, res.to_json(), res.human())

@@ -29,6 +29,9 @@ validation
     Held-out validation, inflation calibration, fault injection (beyond the paper).
 calibration
     Inflation by K-fold cross-validation inside the identification data (``identify --calibrate K``).
+coverage
+    The motion the identification data contain (velocity, acceleration, position range), reduced to
+    extremes that merge exactly: how much of the reference class ``identify`` saw (row G20).
 model
     The conformance model file (plant, estimator, horizon, per-joint sets, inflation).
 monitor

@@ -20,6 +20,12 @@ it from the training data alone, so that held-out data stay held out:
 4. A joint's inflation is the largest over its folds (``flagged`` if some fold is violated
    at every grid value).
 
+A fold too small to mean anything is refused before anything is identified: every fold
+must hold at least :data:`MIN_FOLD_HORIZONS` horizons of samples, ``MIN_FOLD_HORIZONS (k* + 1)``
+on every joint (that many test cases that share no sample; 1260 samples, 5.04 s, at the
+paper's k* = 125). Before, one short recording halved into K blocks gave "5 folds of 1 runs"
+whose verdicts rested on a handful of independent test cases each.
+
 This is an empirical calibration, not a guarantee: it says how much the sets had to grow
 for data of the same kind that the identification did not see. The final sets are
 identified on all folds, and ``reachset check`` on held-out data is the test of it
@@ -29,10 +35,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import guarantees
 from ..errors import ReachsetError
 from .validation import validation_grid
 
-__all__ = ["blocks", "segment_folds", "cross_validate"]
+__all__ = ["MIN_FOLD_HORIZONS", "blocks", "segment_folds", "cross_validate"]
+
+#: the least data a fold may hold: this many horizons of k* + 1 samples (module docstring)
+MIN_FOLD_HORIZONS = 10
 
 
 def blocks(runs, k):
@@ -70,6 +80,18 @@ def segment_folds(series, k, runs):
             folds.append(i % k)
             a, i = stop, i + 1
     return segs, folds, len(bl), len(runs)
+
+
+def _require_fold_size(name, segs, folds, *, k, horizon, dt, n_blocks, n_runs):
+    """Refuse (one line naming the numbers) a fold with fewer than ``MIN_FOLD_HORIZONS (k* + 1)`` samples."""
+    need = MIN_FOLD_HORIZONS * (int(horizon) + 1)
+    ticks = [sum(b - a for (a, b), g in zip(segs, folds) if g == f) for f in range(k)]
+    f = int(np.argmin(ticks))
+    if ticks[f] < need:
+        raise guarantees.refused("G20", f"--calibrate {k}: fold {f} of joint {name} holds {ticks[f]} samples "
+                            f"({ticks[f] * dt:.2f} s; {n_runs} runs cut into {n_blocks} blocks for {k} folds), a fold "
+                            f"needs at least {MIN_FOLD_HORIZONS} horizons of k*+1 = {int(horizon) + 1} samples "
+                            f"({need} samples, {need * dt:.2f} s): record more or use fewer folds")
 
 
 class _Sub:
@@ -114,6 +136,7 @@ def cross_validate(plant, estimator, series, *, horizon, k, grid, identify, thm,
             raise ReachsetError(f"--calibrate {k}: joint {name} has {n_blocks} stretches of consecutive stamps "
                                 f"long enough to split; K folds need at least K")
         assign[name] = (segs, folds)
+        _require_fold_size(name, segs, folds, k=k, horizon=horizon, dt=s.dt, n_blocks=n_blocks, n_runs=n_runs)
         out[name] = {"inflation": 0.0, "flagged": False, "folds": [], "runs": n_runs, "blocks": n_blocks}
     for f in range(k):
         train = {n: _Sub(s, [seg for seg, g in zip(*assign[n]) if g != f]) for n, s in series.items()}

@@ -29,6 +29,7 @@ import numpy as np
 from ..bags import read_estimates, read_references
 from ..bags.messages import header_stamp_ns
 from ..bags import PERIOD_TOLERANCE, ReadReport, merge_reports, read_joint_series
+from ..conformance.coverage import merge_motion, motion_extremes
 from ..conformance.kernels import require_runs
 from ..conformance.model import file_sha256
 from ..conformance.theorem1 import CheckResult, Deviations, check, combine, deviation_extremes
@@ -110,6 +111,7 @@ class BagExtremes:
     sha256: str             # of the bag's files (the model's provenance)
     messages: int
     loops: dict | None = None   # name -> LoopExtremes or None (reidentify: the recorded closed loop)
+    motion: dict | None = None  # name -> MotionExtremes (identify's coverage of the reference class)
 
 
 @dataclass(frozen=True)
@@ -201,7 +203,9 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False, loops
         series (``allow_empty``: a bag too short for a test case contributes nothing);
         ``references``: :func:`~reachset_ros.bags.read_references` of the bag when asked;
         ``loops`` ({name: (observer, controller)}, reidentify): per joint the recorded closed
-        loop's :func:`~reachset_ros.synthesis.recorded_loop.series_loop_extremes`.
+        loop's :func:`~reachset_ros.synthesis.recorded_loop.series_loop_extremes`; ``motion``: per
+        joint :func:`~reachset_ros.conformance.coverage.motion_extremes` (with the bag's
+        ``/reference``), for identify's coverage of the reference class.
     """
     series, report = read.read(path)
     devs, longest = {}, {}
@@ -212,15 +216,19 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False, loops
         except ReachsetError as e:
             raise ReachsetError(f"{path}: joint {name}: {e}") from None
         longest[name] = max((b - a for a, b in s.segments), default=0)
-    refs = loop_ext = None
-    if references or loops:
-        refs = read_references([Path(path)], list(series), read.dt)
+    refs = read_references([Path(path)], list(series), read.dt)
+    motion = {n: motion_extremes(s.y, s.segments, s.dt, reference_qdd=[r.qdd for r in refs[n]] if n in refs else None)
+              for n, s in series.items()}
+    loop_ext = None
+    if not (references or loops):
+        refs = None
     if loops:
         est = read_estimates([Path(path)], list(series)) or {}
         loop_ext = {n: series_loop_extremes(sweep.plant, *loops[n], series[n], est.get(n), refs.get(n, ()))
                     for n in loops if n in series}
     return BagExtremes(path=str(path), joints=tuple(series), devs=devs, longest=longest, report=report,
-                       references=refs, sha256=file_sha256(path), messages=_messages(report), loops=loop_ext)
+                       references=refs, sha256=file_sha256(path), messages=_messages(report), loops=loop_ext,
+                       motion=motion)
 
 
 def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis):
@@ -256,6 +264,7 @@ class FleetSweep:
     references: dict | None  # name -> [Reference, ...] in bag order (synthesize), else None
     sha256: tuple            # per bag, in bag order
     loops: dict | None = None  # name -> merged LoopExtremes or None (reidentify), else None
+    motion: dict | None = None  # name -> merged MotionExtremes (identify's coverage of the reference class)
 
 
 def merge_extremes(parts, history, horizon, bags):
@@ -276,8 +285,11 @@ def merge_extremes(parts, history, horizon, bags):
     loops = None
     if parts[0].loops is not None:
         loops = {n: merge_loops([p.loops.get(n) for p in parts]) for n in parts[0].loops}
+    motion = None
+    if all(p.motion is not None for p in parts):
+        motion = {n: merge_motion([p.motion[n] for p in parts]) for n in names}
     return FleetSweep(devs, merge_reports([p.report for p in parts]), refs, tuple(p.sha256 for p in parts),
-                      loops)
+                      loops, motion)
 
 
 def merge_checks(parts, history, horizon, bags):

@@ -17,12 +17,21 @@ measured position at rest (q_d = q, qd_d = qdd_d = 0), so it does not run away f
 arm; when the stop is cleared (the monitor's reset) the stream is re-synchronised to the
 arm: it rests at the measured position for ``resume_rest`` s, then new moves start from
 there (:meth:`ReferenceStream.restart`), so tracking resumes with no jump.
+
+``trajectory_file`` (a bag with ``/reference``, e.g. written by ``reachset excite``): the node
+plays that reference instead of random moves (:class:`reachset_ros.sim.excite.TrajectoryPlayer`:
+time 0 at the first ``/joint_states`` sample, exact between the file's samples, at rest at its
+last sample once it ends); the file must start and end at rest and stay inside the class
+(``qd_max``, ``qdd_max``), else the node exits 2 naming the problem. ``hold`` runs on to the
+file's next rest and waits there; after a cleared safe stop the file is not resumed (it would
+jump from where the arm is held): the reference rests at the arm's position.
 """
 import numpy as np
 from rclpy.node import Node
 from reachset_msgs.msg import JointReference, SafeStop
 from sensor_msgs.msg import JointState
 
+from ..sim.excite import TrajectoryPlayer, load_trajectory
 from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
 from ..robot.dynamics import JOINT_NAMES
 from .common import SAFE_STOP_QOS, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
@@ -43,11 +52,19 @@ class ReferenceNode(Node):
                                                  read_only=True))
         self.declare_parameter("hold", False, desc("finish the move under way, then rest at its end point "
                                                    "until cleared (no new moves)"))
-        cfg = ReferenceConfig(qd_max=float(self.get_parameter("qd_max").value),
-                              qdd_max=float(self.get_parameter("qdd_max").value),
-                              lead=float(self.get_parameter("lead").value))
-        self.stream = ReferenceStream(ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value)))
-        self.names = list(JOINT_NAMES)
+        self.declare_parameter("trajectory_file", "", desc("a bag whose /reference this node plays instead of random "
+                                                           "moves (reachset excite writes one); '' for random moves",
+                                                           read_only=True))
+        qd_max, qdd_max = float(self.get_parameter("qd_max").value), float(self.get_parameter("qdd_max").value)
+        cfg = ReferenceConfig(qd_max=qd_max, qdd_max=qdd_max, lead=float(self.get_parameter("lead").value))
+        path = str(self.get_parameter("trajectory_file").value)
+        if path:
+            traj = load_trajectory(path, qd_max=qd_max, qdd_max=qdd_max)
+            self.stream, self.names = TrajectoryPlayer(traj), list(traj.names)
+            self.get_logger().info(f"playing {path}: {len(traj)} samples, {traj.t[-1]:.1f} s")
+        else:
+            self.stream = ReferenceStream(ReferenceGenerator(cfg, seed=int(self.get_parameter("seed").value)))
+            self.names = list(JOINT_NAMES)
         self.pub = self.create_publisher(JointReference, "reference", TICK_QOS)
         self.declare_parameter("resume_rest", 1.0, desc("after a cleared safe stop: rest this long (s) at the arm's "
                                                         "position before new moves", 0.0, 60.0))
@@ -66,10 +83,9 @@ class ReferenceNode(Node):
     def measured(self, msg):
         """The measured positions in the generator's joint order, or None if unusable."""
         idx = {n: i for i, n in enumerate(msg.name)}
-        n = len(self.stream.generator.q0)
-        if len(msg.position) < len(msg.name) or any(j not in idx for j in self.names[:n]):
+        if len(msg.position) < len(msg.name) or any(j not in idx for j in self.names):
             return None
-        q = np.array([msg.position[idx[j]] for j in self.names[:n]], dtype=np.float64)
+        q = np.array([msg.position[idx[j]] for j in self.names], dtype=np.float64)
         return q if np.all(np.isfinite(q)) else None
 
     def on_joint_states(self, msg):
@@ -87,6 +103,9 @@ class ReferenceNode(Node):
                                    f"{stamp} (resting {rest:g} s, then new moves)")
         q, qd, qdd = self.stream.at(stamp, bool(self.get_parameter("hold").value))
         self.publish(msg, q, qd, qdd)
+        if getattr(self.stream, "done", False) and not getattr(self, "_told_done", False):
+            self._told_done = True
+            self.get_logger().info("trajectory file played to its end: the reference rests at its last sample")
 
     def publish(self, msg, q, qd, qdd):
         out = JointReference()

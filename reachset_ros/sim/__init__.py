@@ -12,6 +12,9 @@ limits, effort limits, brakes and the reference box come from the model
   references inside the paper's limits (Sec. IV, ``U_ref``; Table I for the LWA-4P, the
   URDF's limits for any other arm), and the stream
   ``reference_node`` publishes;
+* :mod:`~reachset_ros.sim.excite` - identification references that reach the reference
+  class' limits on every joint (``reachset excite``) and their player (``reference_node``'s
+  ``trajectory_file``);
 * :mod:`~reachset_ros.sim.recordings` - simulated closed-loop recordings (written as bags)
   for tests, benchmarks and tools;
 * :mod:`~reachset_ros.sim.safe_stop` - a safe stop on the simulated arm (the nodes' code path

@@ -29,6 +29,7 @@ from ..conformance.theorem1 import Theorem1, deviation_extremes_many
 from ..conformance.validation import detection_delay, validation_grid
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
+from .coverage import class_coverage, series_motion
 
 __all__ = ["DEFAULT_GRID", "IdentifyOptions", "IdentifyResult", "calibrate_margin", "check_options", "identify",
            "identify_series", "inflation_grid", "model_joint_sets", "run_ranges", "validate"]
@@ -70,6 +71,9 @@ class IdentifyOptions:
         K of ``--calibrate K``.
     calibrate_margin : int
     fault_accel : float
+    class_qd_max, class_qdd_max, coverage_threshold : float
+        The reference class the data's coverage is measured against and the share below which a
+        joint's data are thin (:mod:`reachset_ros.workflows.coverage`).
     out : path or None
         Where the model file is written.
     command : str
@@ -95,6 +99,9 @@ class IdentifyOptions:
     calibrate: int | None = None
     calibrate_margin: int = 0
     fault_accel: float = 5.0
+    class_qd_max: float = field(default_factory=lambda: defaults.get("identify.coverage.qd_max"))
+    class_qdd_max: float = field(default_factory=lambda: defaults.get("identify.coverage.qdd_max"))
+    coverage_threshold: float = field(default_factory=lambda: defaults.get("identify.coverage.threshold"))
     out: Path | None = None
     command: str = ""
 
@@ -124,6 +131,7 @@ class IdentifyResult:
     validation_data: dict | None = None
     model: str | None = None
     inflations: dict = field(default_factory=dict)   # per joint, the inflation the model applies
+    coverage: dict | None = None
 
     def to_json(self):
         """The ``reachset identify --json`` object."""
@@ -136,6 +144,9 @@ class IdentifyResult:
             out["validation_data"] = self.validation_data
         if self.model is not None:
             out["model"] = self.model
+        if self.coverage is not None:
+            out["coverage"] = self.coverage
+            out["thin_coverage"] = sorted(n for n, c in self.coverage.items() if c["thin"])
         return out
 
     def human(self):
@@ -160,7 +171,7 @@ class IdentifyResult:
                     + (f"detected after {f['delay_ticks']} ticks" if f["detected"] else "NOT detected"))
         if self.calibration is not None:
             for n, c in self.calibration.items():
-                lines.append(f"{n}: cross-validated inflation {c['inflation']} ({self.calibrate} folds of "
+                lines.append(f"{n}: cross-validated inflation {c['inflation']} ({self.calibrate} folds from "
                              f"{c['runs']} runs; per fold " + ", ".join(str(f["chosen_inflation"]) for f in c["folds"])
                              + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
         if self.validation_data is not None or self.calibration is not None:
@@ -317,6 +328,11 @@ def check_options(o: IdentifyOptions):
         if not (np.isfinite(o.inflation) and o.inflation >= 0):
             raise ReachsetError(f"--inflation must be finite and >= 0, got {o.inflation}")
     inflation_grid(o.inflation_grid)
+    for opt, v in (("--class-qd-max", o.class_qd_max), ("--class-qdd-max", o.class_qdd_max)):
+        if not (np.isfinite(v) and v > 0):
+            raise ReachsetError(f"{opt} must be finite and > 0, got {v}")
+    if not (np.isfinite(o.coverage_threshold) and 0 <= o.coverage_threshold <= 1):
+        raise ReachsetError(f"--coverage-threshold must be in [0, 1], got {o.coverage_threshold}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -327,6 +343,7 @@ class _Data:
     devs: dict | None
     report: object
     sha256: tuple | None = None
+    motion: dict | None = None      # a fleet's merged motion extremes (coverage of the class)
 
 
 def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
@@ -337,7 +354,7 @@ def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
         return _Data(series=series, devs=None, report=report)
     with fleet:
         swept = fl.extremes(fleet, o.bags, fleet_read, fl.SweepSpec(plant, est, o.horizon, thm))
-    return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256)
+    return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256, motion=swept.motion)
 
 
 def _joint_json(sets, dev, settled, horizon):
@@ -428,6 +445,8 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                                    thm=thm, cost=o.cost, method=o.method, devs=data.devs)
     joints = {n: model_joint_sets(sets, dev, o.horizon) for n, (sets, dev, _) in results.items()}
     js = {n: _joint_json(sets, dev, settled, o.horizon) for n, (sets, dev, settled) in results.items()}
+    motion = data.motion if data.series is None else series_motion(data.series, o.bags)
+    cov = class_coverage(motion, qd_max=o.class_qd_max, qdd_max=o.class_qdd_max, threshold=o.coverage_threshold)
     inflations = {n: 0.0 if o.inflation is None else float(o.inflation) for n in joints}   # --inflation F: all
     calib = calibrated = None
     if o.calibrate is not None:
@@ -460,4 +479,5 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                           method=o.method, horizon=o.horizon, minimum_horizon=k_min, horizon_below_minimum=weak,
                           initial_state_set=bool(o.initial_state_set), calibrate=o.calibrate,
                           calibrated_inflation=calibrated, calibration=calib,
-                          validation_data=None if vseries is None else vreport.as_dict(), model=model)
+                          validation_data=None if vseries is None else vreport.as_dict(), model=model,
+                          coverage=cov)

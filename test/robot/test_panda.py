@@ -57,7 +57,7 @@ def test_panda_identify_check_and_a_fault_through_the_effort_path(panda):
     ins = cli("inspect", d / "train", "--robot", ROBOT, "--json")
     cmd = ins["identify"]["command"]
     assert "--input effort" in cmd and f"--lock-joints {LOCK}" in cmd, ins["identify"]
-    ident = cli(*shlex.split(cmd)[1:], "--calibrate", 5, "--out", d / "model.yaml", "--json")
+    ident = cli(*shlex.split(cmd)[1:], "--calibrate", 4, "--out", d / "model.yaml", "--json")
     assert list(ident["joints"]) == ARM.split(",")
     assert ident["data"]["input"]["locked_joints"] == LOCK.split(",")
     train = cli("check", d / "train", "--model", d / "model.yaml", "--json", *EFF)
@@ -81,7 +81,7 @@ def test_panda_monitor_node_from_joint_states_alone(ros, panda, tmp_path):
     from reachset_ros.nodes.common import stamp_ns, to_stamp
     d, _, fault = panda
     if not (d / "model.yaml").is_file():
-        cli("identify", d / "train", "--calibrate", 5, "--out", d / "model.yaml", *EFF)
+        cli("identify", d / "train", "--calibrate", 4, "--out", d / "model.yaml", *EFF)
     chk = cli("check", d / "fault", "--model", d / "model.yaml", "--json", *EFF, code=1)
     first = min(j["first_violation_ns"] for j in chk["joints"].values() if j["first_violation_ns"])
     msgs = [m for _, _, m in bags.read_messages([d / "fault"], ["/joint_states"])]
