@@ -51,6 +51,7 @@ def measure(*, data, d, calibrate, margin, accel, cost=None):
             cli("import-lwa4p", data, "--runs", runs, "--out", d / runs)
     after = d / "per_joint.yaml"
     ident = cli("identify", d / "train", "--calibrate", calibrate, "--calibrate-margin", margin, "--out", after,
+                "--inflation-rule", "per-joint",
                 "--json", *(["--cost", cost] if cost else []))
     m = mdl.load(after)
     before = d / "largest.yaml"

@@ -92,6 +92,11 @@ def add_arguments(p):
                    help="with --calibrate: store per joint the --inflation-grid value N steps above its cross-validated "
                         "one (default 0). The folds calibrate for data as long as a fold; a run many folds long "
                         "sees more (docs/reliability.md, run-length margin)")
+    p.add_argument("--inflation-rule", default=defaults.get("identify.inflation_rule"),
+                   choices=["largest", "per-joint"],
+                   help="with --calibrate/--validate: apply to every joint the largest of the joints' calibrated "
+                        "values, or each joint its own (issue 35.1: more detection power, but on the real LWA-4P the "
+                        "folds under-estimated arm_5's held-out need, docs/performance.md); default %(default)s")
     p.add_argument("--fault-accel", type=float, default=5.0, metavar="A",
                    help="test fault for the detection delay: constant acceleration, rad/s^2 (default 5)")
     cov = defaults.table("identify.coverage")
@@ -112,7 +117,7 @@ def options_of(args):
         bags=tuple(args.bags), joints=parse_joints(args.joints), dt=args.dt, topics=topics_of(args),
         horizon=args.horizon, allow_weak_horizon=args.allow_weak_horizon,
         estimator=args.estimator, initial_state_set=bool(args.initial_state_set), centers=args.centers,
-        alpha_lower=args.alpha_lower, cost=args.cost, method=args.method,
+        alpha_lower=args.alpha_lower, cost=args.cost, method=args.method, inflation_rule=args.inflation_rule,
         validate=None if args.validate is None else tuple(args.validate),
         inflation_grid=None if args.inflation_grid is None else tuple(args.inflation_grid),
         inflation=args.inflation, calibrate=args.calibrate, calibrate_margin=args.calibrate_margin,

@@ -209,7 +209,7 @@ def test_the_certificate_of_a_joint_uses_its_own_inflation(tmp_path):
 
 
 def test_identify_calibrate_stores_each_joints_own_value(tmp_path, capsys):
-    """``identify --calibrate 2``: joint B's second run is disturbed 1.6 times harder than its
+    """``identify --calibrate 2 --inflation-rule per-joint``: joint B's second run is disturbed 1.6 times harder than its
     first, joint A's runs alike, so the folds need more on B than on A. Each joint's block
     stores its own cross-validated value (old code: the largest, once, for both), the JSON
     reports it as the joint's ``inflation``, the record binds it; ``--calibrate-margin 1``
@@ -224,7 +224,7 @@ def test_identify_calibrate_stores_each_joints_own_value(tmp_path, capsys):
     for margin in (0, 1):
         out = tmp_path / f"m{margin}.yaml"
         r = run_json(["identify", *bags, "--horizon", HORIZON, "--calibrate", 2, "--calibrate-margin", margin,
-                      "--out", out], capsys)
+                      "--inflation-rule", "per-joint", "--out", out], capsys)
         cv = {n: r["joints"][n]["calibration"]["inflation"] for n in (A, B)}
         want = {n: calibrate_margin(x, grid, margin) if margin else x for n, x in cv.items()}
         assert cv[A] < cv[B]                       # the data make the joints differ
@@ -233,6 +233,11 @@ def test_identify_calibrate_stores_each_joints_own_value(tmp_path, capsys):
         assert {n: doc["joints"][n]["inflation"] for n in (A, B)} == want and doc["inflation"] == want[B]
         assert doc["calibration"]["inflations"] == want and doc["calibration"]["per_joint"] == cv
         assert mdl.load(out).inflations() == want
+    # the default rule (identify.inflation_rule, 'largest'): the largest of the joints' values on every joint
+    out = tmp_path / "largest.yaml"
+    r = run_json(["identify", *bags, "--horizon", HORIZON, "--calibrate", 2, "--out", out], capsys)
+    cv = {n: r["joints"][n]["calibration"]["inflation"] for n in (A, B)}
+    assert mdl.load(out).inflations() == {A: cv[B], B: cv[B]} and r["inflation"] == cv[B]
     out = tmp_path / "given.yaml"
     run_json(["identify", *bags, "--horizon", HORIZON, "--inflation", 0.3, "--out", out], capsys)
     assert mdl.load(out).inflations() == {A: 0.3, B: 0.3}

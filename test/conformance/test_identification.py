@@ -207,7 +207,7 @@ def test_cli_cost_method_validate(tmp_path, held_out):
     write_bag(val, np.hstack([yv, y2v]), np.hstack([uv, u2v]), names, T0 + DT_NS * np.arange(3000))
     model = tmp_path / "m.yaml"
     r = run_cli("identify", train, "--horizon", "50", "--validate", val, "--inflation-grid", "0.1", "0.2",
-                "0.5", "1", "--out", model, "--json")
+                "0.5", "1", "--inflation-rule", "per-joint", "--out", model, "--json")
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout)
     assert {"joints", "data", "inflation", "cost", "method", "model"} <= set(res)
@@ -219,7 +219,8 @@ def test_cli_cost_method_validate(tmp_path, held_out):
         assert set(v) >= {"at_zero", "grid", "chosen_inflation", "flagged", "model_inflation", "fault",
                           "checked_ticks", "at_model_inflation"}
         assert v["checked_ticks"] == 3000 - Estimator("fd").history
-        # per joint its own smallest conformant inflation (issue 35.1); the model-level is the largest
+        # per joint its own smallest conformant inflation (--inflation-rule per-joint, issue 35.1); the
+        # model-level is the largest
         assert v["model_inflation"] == v["chosen_inflation"] == j["inflation"] <= infl and not v["flagged"]
         assert v["at_model_inflation"]["violating_ticks"] == 0
         assert v["fault"]["detected"] and v["fault"]["delay_ticks"] >= 0 and v["fault"]["accel"] == 5.0
