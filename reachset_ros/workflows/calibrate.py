@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
 from ..bags import read_joint_series
 from ..bags.messages import JOINT_STATES, PLANT_INPUT
 from ..conformance import model as mdl
@@ -36,7 +37,7 @@ from ..conformance.theorem1 import deviation_extremes_many
 from ..errors import ReachsetError
 from ..systems.closedloop import close_loop, radius_coefficients
 from ..systems.gains import Gains
-from .identify import calibrate_margin, inflation_grid, model_joint_sets, run_ranges, validate
+from .identify import applied_inflations, calibrate_margin, inflation_grid, model_joint_sets, run_ranges, validate
 
 __all__ = ["CalibratedModel", "calibrate_model", "fold_rule"]
 
@@ -107,7 +108,7 @@ def _series(model, bags, topics, reader):
 
 
 def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None, margin=0, floor=0.0,
-                    topics=(JOINT_STATES, PLANT_INPUT), reader=None, fault_accel=5.0):
+                    topics=(JOINT_STATES, PLANT_INPUT), reader=None, fault_accel=5.0, inflation_rule=None):
     """The model's inflation calibrated on its own sets (module docstring).
 
     Parameters
@@ -130,6 +131,10 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     topics, reader
         How the bags are read; u_p must be computed as the model's was
         (:func:`~reachset_ros.conformance.model.require_input_source`).
+    inflation_rule : str, optional
+        ``"largest"`` (every joint gets the largest of the joints' values, floors and margin
+        included) or ``"per-joint"`` (:func:`~reachset_ros.workflows.identify.applied_inflations`);
+        default ``identify.inflation_rule``, as ``identify`` applies it.
 
     Returns
     -------
@@ -143,7 +148,8 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
     if validate_bags is not None:
         vseries = _series(model, validate_bags, topics, reader)
         chosen, per = validate(model.plant, model.estimator, horizon=model.horizon, thm=model.theorem1(),
-                               joints=model.joints, vseries=vseries, grid=g, fault_accel=fault_accel)
+                               joints=model.joints, vseries=vseries, grid=g, fault_accel=fault_accel,
+                               rule=inflation_rule or defaults.get("identify.inflation_rule"))
         rule = {"sets": "the model's own sets"}
         out = mdl.with_calibration(model.with_inflation(chosen), method="held_out_bags", inflation_grid=list(g),
                                    rule=rule, bags=[str(b) for b in validate_bags])
@@ -156,8 +162,9 @@ def calibrate_model(model, *, bags=(), folds=None, validate_bags=None, grid=None
                            identify=fit, thm=model.theorem1(), runs=runs)
     per = {n: float(c["inflation"]) for n, c in calib.items()}
     floors = dict(floor) if isinstance(floor, dict) else {n: float(floor) for n in per}
-    inflations = {n: max(calibrate_margin(x, g, margin) if margin else x, float(floors.get(n, 0.0)))
-                  for n, x in per.items()}
+    # applied as identify applies it (identify.inflation_rule: the largest over the joints, or each its own)
+    inflations = applied_inflations({n: max(calibrate_margin(x, g, margin) if margin else x, float(floors.get(n, 0.0)))
+                                     for n, x in per.items()}, inflation_rule or defaults.get("identify.inflation_rule"))
     out = mdl.with_calibration(model.with_inflation(inflations), method="cross_validation",
                                folds=int(folds), inflation_grid=list(g), calibrated_inflation=max(per.values()),
                                margin_steps=int(margin), floor={n: float(x) for n, x in floors.items()},
