@@ -39,7 +39,14 @@ def brake_without_estimates(node):
     arm on the drives' last command). Once per stop: nothing happens while every brake is
     already engaged."""
     now = arm_time(node)
-    if not node.stop_active or node.last_estimate_time is None or now is None:
+    if not node.stop_active or now is None:
+        return
+    if node.last_estimate_time is None:
+        if not node.last_estimate_stamp:
+            return                      # no estimate yet: nothing the braking law ever acted on
+        # estimates came before the arm's clock was known (/clock not yet received): the gap
+        # counts from the first moment it is
+        node.last_estimate_time = now
         return
     if now - node.last_estimate_time < STOP_ESTIMATE_TIMEOUT:
         return

@@ -335,11 +335,16 @@ class TestStopWithoutEstimatesOnTheArmsClock:
                 tick_clock(ts[-1] + 4_000_000)
                 time.sleep(0.05)
             assert not any(all(b.engage) for b in list(brakes)), list(brakes)[-3:]
-            # 150 ms of the arm's time without an estimate: every brake
-            for i in range(2, 40):
-                tick_clock(ts[-1] + i * 4_000_000)
-                time.sleep(0.01)
-            assert bus.wait(lambda: any(all(b.engage) for b in list(brakes)), 15), list(brakes)[-3:]
+            # the arm's time runs on without an estimate (as a simulation steps on stale commands):
+            # every brake once 100 ms of it have passed
+            i = [1]
+
+            def braked():
+                i[0] += 1
+                tick_clock(ts[-1] + i[0] * 4_000_000)
+                return any(all(b.engage) for b in list(brakes))
+            assert bus.wait(braked, 30), list(brakes)[-3:]
+            assert i[0] >= 23, f"braked after {i[0] * 4} ms of the arm's time, before its 100 ms"
             assert "safe stop without estimates" in proc.log.read_text()
         finally:
             processes.stop([proc])
