@@ -96,6 +96,17 @@ def wait_until(cond, timeout=15.0, poll=0.01):
     return bool(cond())
 
 
+
+def spin_until(node, cond, timeout):
+    """Spin ``node`` (20 ms at a time) until ``cond()`` is true or ``timeout`` s have passed;
+    whether it became true."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.02)
+        if cond():
+            return True
+    return False
+
 class Recorder:
     """Subscriptions spun by their own executor thread (nothing missed while the test waits)."""
 

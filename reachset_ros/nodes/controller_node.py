@@ -143,7 +143,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         self.stop_known = not self.get_parameter("wait_for_monitor").value
         self.stop = None             # StopState of the stop in progress (None while tracking)
         self.last_estimate_stamp = 0  # stamp of the newest estimate received (ns)
-        self.last_estimate_time = None  # the arm's time it arrived (s, :meth:`arm_time`)
+        self.last_estimate_time = None  # the arm's time it arrived (s, estimate_watch.arm_time)
         self.stop_received = 0       # last_estimate_stamp when the active /safe_stop arrived (BrakeCommand)
         self.own_stop = None         # reason of a stop latched by this node (no usable estimate)
         self.last_q = None           # the last usable estimated position
@@ -327,22 +327,15 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
 
     def on_wait_timer(self):
         """An estimate waited ``reference_timeout`` for its reference: control with the newest
-        earlier one. And a safe stop without estimates brakes at once (:meth:`brake_without_estimates`)."""
-        self.brake_without_estimates()
+        earlier one. And a safe stop without estimates brakes at once
+        (:func:`~reachset_ros.nodes.estimate_watch.brake_without_estimates`)."""
+        estimate_watch.brake_without_estimates(self)
         if self.waiting is None:
             return
         if time.monotonic() - self.waiting[2] >= float(self.get_parameter("reference_timeout").value):
             _, est, _ = self.waiting
             self.waiting = None
             self.on_estimate(est, late=True)
-
-    def arm_time(self):
-        """The arm's time (s), :func:`estimate_watch.arm_time`."""
-        return estimate_watch.arm_time(self)
-
-    def brake_without_estimates(self):
-        """Every brake when a safe stop has no estimates: :func:`estimate_watch.brake_without_estimates`."""
-        estimate_watch.brake_without_estimates(self)
 
     def on_safe_stop(self, msg):
         active = bool(msg.active)
@@ -498,7 +491,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         arrived waits for it up to ``reference_timeout``; a newer estimate ends the wait."""
         stamp = stamp_ns(msg.header.stamp)
         if not late:
-            self.last_estimate_time = self.arm_time() or self.last_estimate_time   # None: no /clock yet
+            self.last_estimate_time = estimate_watch.arm_time(self) or self.last_estimate_time   # None: no /clock yet
             # the newest stamp (a sample whose stamp jumped back is not newer; a jump back by
             # more than 1 s is a new clock, as for the commands below)
             if stamp > self.last_estimate_stamp or stamp < self.last_estimate_stamp - 1_000_000_000:

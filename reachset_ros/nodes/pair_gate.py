@@ -116,6 +116,11 @@ def _client(node):
     return node._pair_client
 
 
+def _running(client, name):
+    """Whether a node named ``name`` is in the graph ``client`` sees."""
+    return name.lstrip("/") in [n for n, _ in client.get_node_names_and_namespaces()]
+
+
 def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gains):
     """Refuse a request whose pair that will run is refused by this node's or the other node's gate.
 
@@ -177,7 +182,7 @@ def _partner_gate(node, partner, values, model):
     from .gain_params import gains_from
     timeout = float(defaults.get("nodes.pair.timeout"))
     client = _client(node)
-    if partner.lstrip("/") not in [n for n, _ in client.get_node_names_and_namespaces()]:
+    if not _running(client, partner):
         raise guarantees.refused("G16", f"the pair that will run cannot be certified: {partner} is not running "
                                         f"(pair_node {partner!r}; '' for a node run alone)")
     other, why = get_remote_parameters(client, partner, READ, timeout=timeout)
@@ -205,7 +210,7 @@ def _monitor_gate(node, values, own):
     if not monitor:
         return None
     client = _client(node)
-    if monitor.lstrip("/") not in [n for n, _ in client.get_node_names_and_namespaces()]:
+    if not _running(client, monitor):
         return None
     got, why = get_remote_parameters(client, monitor, ["model_file"], timeout=float(defaults.get("nodes.pair.timeout")))
     if got is None:

@@ -13,7 +13,7 @@ from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, 
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, plant_stream, wait_until, write_model
+from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, plant_stream, spin_until, wait_until, write_model
 from reachset_ros import conformance as cf
 from reachset_ros import processes
 from reachset_ros.bags import read_messages
@@ -30,15 +30,6 @@ from reachset_ros.systems.plant import lwa4p_joint_plant
 
 
 pytestmark = pytest.mark.dds   # real DDS participants / node processes
-
-
-def spin_until(node, cond, timeout):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.02)
-        if cond():
-            return True
-    return False
 
 
 def test_controller_gains_through_parameter_service(ros, tmp_path):

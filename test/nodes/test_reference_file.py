@@ -1,11 +1,9 @@
 """Issue 35.3 over real DDS: ``reference_node`` plays the ``/reference`` bag ``reachset excite``
 writes (``trajectory_file``), sample for sample at the measurement stamps, and rests at its
 end; a file outside the class it is configured for is refused at start (exit 2, one line)."""
-import time
 
 import numpy as np
 import pytest
-import rclpy
 from reachset_msgs.msg import JointReference
 from sensor_msgs.msg import JointState
 
@@ -13,17 +11,9 @@ from reachset_ros import processes
 from reachset_ros.cli import main
 from reachset_ros.nodes.common import TICK_QOS, to_stamp
 from reachset_ros.sim import excite as ex
+from helpers import spin_until
 
 pytestmark = pytest.mark.dds
-
-
-def spin_until(node, cond, timeout):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.02)
-        if cond():
-            return True
-    return False
 
 
 @pytest.fixture(scope="module")
