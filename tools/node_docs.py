@@ -75,6 +75,9 @@ PROBE_OVERRIDES = {"allow_uncertified": (True, False)}     # name -> (probe valu
 #: all, shown with their declared defaults: a monitor without a model does not run (issue
 #: 34.1), the probe gives it a one-joint model (:func:`probe_model`)
 NODE_PROBES = {"monitor_node": {"model_file": ""}}         # node -> {name: declared default}
+#: read-only parameters whose value is set at start, not declared in advance: the table says what
+#: they hold instead of one run's value
+STARTED_VALUES = {("sim_node", "start_stamp_ns"): "(wall time at start)"}
 
 
 def probe_model(directory):
@@ -112,7 +115,7 @@ def table(node, skip):
         if name in PROBE_OVERRIDES:
             value = PROBE_OVERRIDES[name][1]
         value = NODE_PROBES.get(node.get_name(), {}).get(name, value)
-        default = literal(value)
+        default = STARTED_VALUES.get((node.get_name(), name)) or literal(value)
         rows.append("| " + " | ".join([
             f"`{name}`", TYPES.get(d.type, str(d.type)), f"`{cell(default)}`", value_range(d),
             "yes" if d.read_only else "no", cell(d.description)]) + " |")

@@ -108,6 +108,13 @@ class SimNode(Node):
                                     integer=True))
         self.declare_parameter("publish_clock", True,
                                desc("publish /clock (the simulation's time) every tick", read_only=True))
+        self.declare_parameter("measurement_limit", -1,
+                               desc("publish at most this many measurements (the initial state is the first), then "
+                                    "hold: no step, no /clock, until the limit is raised (-1: no limit). With 0 at "
+                                    "start nothing is published until it is raised, so that every node is up before "
+                                    "the first measurement: a phase of n steps is the same n steps however loaded "
+                                    "the machine is (lockstep; the demo's training, issue 35.4)",
+                                    -1, 2 ** 62, integer=True))
         self.declare_parameter("fault", "none",
                                desc("inject now: " + " | ".join(FAULTS[1:]) + "; none: clear all faults"))
         self.declare_parameter("fault_joint", "arm_1_joint", desc("joint of the fault"))
@@ -123,6 +130,9 @@ class SimNode(Node):
         else:
             cfg = sim.SimConfig.ideal(dt=dt, start_ns=start_ns)
         self.arm = sim.SimulatedArm(cfg, seed=seed)
+        self.declare_parameter("start_stamp_ns", int(start_ns),
+                               desc("stamp of the initial measurement, ns (measurement n has start_stamp_ns + n dt)",
+                                    read_only=True))
         rc = ReferenceConfig()
         q0 = 0.5 * (rc.q_min + rc.q_max)
         self.m = self.arm.reset(q0)
@@ -154,7 +164,9 @@ class SimNode(Node):
         self.dt = dt
         self.next_wall = time.monotonic() + dt
         self.published_wall = time.monotonic()
-        self.publish(self.m)
+        self.published = 0           # measurements published (the initial state is the first)
+        if self.get_parameter("measurement_limit").value != 0:
+            self.publish(self.m)
         self.create_timer(min(dt, 0.001), self.tick)
 
     def on_effort(self, msg):
@@ -175,6 +187,11 @@ class SimNode(Node):
             self.checked_stamp = stamp
         self.checked_wall = time.monotonic()
         self.tick()  # an awaited verdict: step now if the period is due
+
+    def held(self):
+        """True while ``measurement_limit`` measurements have been published (hold: no step)."""
+        limit = int(self.get_parameter("measurement_limit").value)
+        return 0 <= limit <= self.published
 
     def ahead_of_monitor(self):
         """True when the next measurement would be more than ``monitor_lockstep_ticks`` ticks
@@ -257,7 +274,13 @@ class SimNode(Node):
         when ``lockstep_timeout`` has passed (then the previous command is held, as a real drive
         does, or the step goes ahead of the monitor; both counted)."""
         now = time.monotonic()
-        if now < self.next_wall:
+        if now < self.next_wall or self.held():
+            return
+        if self.published == 0:
+            # held from the start: the initial state is the first measurement released
+            self.next_wall = now + self.dt
+            self.publish(self.m)
+            self.published_wall = time.monotonic()
             return
         timeout = float(self.get_parameter("lockstep_timeout").value)
         stale = not self.fresh
@@ -342,6 +365,7 @@ class SimNode(Node):
                                + ", ".join(f"{k} {v}" for k, v in self.arm.counters.items()))
 
     def publish(self, m):
+        self.published += 1
         if self.clock_pub is not None:
             c = Clock()
             to_stamp(c.clock, m.stamp_ns)

@@ -34,7 +34,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .. import processes
-from ..nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, set_remote_parameters
+from ..nodes.common import MONITOR_STARTED, SAFE_STOP_QOS, get_remote_parameters, set_remote_parameters
 from ..nodes.pair_gate import set_pair
 from ..robot.dynamics import JOINT_NAMES
 
@@ -87,6 +87,7 @@ class SuiteCommander(Node):
         self.onsets = []         # every /sim/fault_onset message
         self.group = []          # every process started (close() stops them)
         self.procs = {}          # the newest process of each node name
+        self._sim_steps = None   # a held simulation's clock: start stamp, period, measurement limit
         self.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
         self.create_subscription(Header, "sim/fault_onset", self.onsets.append, SAFE_STOP_QOS)
         # its own executor: /clock wakes it every tick, and rclpy.spin_once would add the node
@@ -138,6 +139,55 @@ class SuiteCommander(Node):
                 break
         wall = time.monotonic() - wall0
         return met, ((self.sim_now() - sim0) * 1e-9 / wall if wall > 0 else float("nan"))
+
+    def run_steps(self, seconds):
+        """Let a held simulation (sim_node started with ``measurement_limit`` 0) publish
+        ``round(seconds / dt)`` more measurements, then hold again; returns once the last of them
+        is on ``/clock``, with its real-time factor. A phase is then a fixed count of simulation
+        steps, the same on a quick or a loaded machine (issue 35.4): nothing moves while the
+        workflow starts a recorder, synthesises or applies gains."""
+        if self._sim_steps is None:
+            values, why = get_remote_parameters(self, "sim_node", ("start_stamp_ns", "dt", "measurement_limit"))
+            if values is None:
+                raise RuntimeError(f"cannot read the simulation's clock parameters: {why}")
+            if int(values["measurement_limit"]) < 0:
+                raise RuntimeError("the simulation is not held (sim_node measurement_limit -1): no fixed steps")
+            self._sim_steps = {"start": int(values["start_stamp_ns"]), "dt_ns": int(round(values["dt"] * 1e9)),
+                               "limit": int(values["measurement_limit"])}
+        st = self._sim_steps
+        n = int(round(seconds * 1e9 / st["dt_ns"]))
+        wall0 = time.monotonic()
+        st["limit"] += n
+        self.set_parameters("sim_node", {"measurement_limit": st["limit"]}, refused="the simulation refused to step")
+        last = st["start"] + (st["limit"] - 1) * st["dt_ns"]
+        if not self.spin_for(wall_limit(seconds), until=lambda: self.sim_now() >= last):
+            raise RuntimeError(f"the simulation did not publish {n} steps within {wall_limit(seconds):.0f} s of "
+                               "wall time: a node is stalled or dead")
+        wall = time.monotonic() - wall0
+        return True, (n * st["dt_ns"] * 1e-9 / wall if wall > 0 else float("nan"))
+
+    def release_sim(self):
+        """A held simulation runs on without a limit again (``measurement_limit`` -1)."""
+        self.set_parameters("sim_node", {"measurement_limit": -1}, refused="the simulation refused to run on")
+        self._sim_steps = None
+
+    def wait_for_loop(self, timeout=120.0):
+        """Wait until the loop's nodes have joined the graph (the observer and the reference
+        subscribed to ``/joint_states``, the controller to ``/observer/estimate`` and
+        ``/reference`` and publishing ``/effort_commands``), then 1 s for their matching: a held
+        simulation's first measurement then reaches every node."""
+        def subscribed(topic, node):
+            return any(i.node_name == node for i in self.get_subscriptions_info_by_topic(topic))
+
+        def ready():
+            return (subscribed("/joint_states", "observer_node") and subscribed("/joint_states", "reference_node")
+                    and subscribed("/observer/estimate", "controller_node")
+                    and subscribed("/reference", "controller_node")
+                    and any(i.node_name == "controller_node"
+                            for i in self.get_publishers_info_by_topic("/effort_commands")))
+        if not self.spin_for(timeout, until=ready):
+            raise RuntimeError(f"the loop's nodes did not come up within {timeout:.0f} s")
+        self.spin_for(1.0)
 
     def sim_wait(self, seconds, until=None):
         """:meth:`spin_sim` without the real-time factor: whether ``until()`` was met."""

@@ -20,7 +20,7 @@ from pathlib import Path
 from .. import defaults
 from ..conformance import model as mdl
 from ..errors import ReachsetError
-from ..nodes.common import stamp_ns
+from ..nodes.common import get_remote_parameters, stamp_ns
 from ..robot.dynamics import U_REF
 from ..robot.lwa4p import default_nominal_path
 from ..synthesis.config import config_path, load_config
@@ -42,6 +42,16 @@ defaults.register("demo", {
                       "gains.hg) with a static law between the nodes' start-up law (omega 10) and the "
                       "paper's (omega 20), one value for all joints"),
 }, owner=__name__)
+defaults.register("demo", {
+    "training_lockstep_timeout": (1.0, "s; while the demo's simulation is held and stepped a fixed count per phase "
+                                       "(training, synthesis), a step waits this long for its command before holding "
+                                       "the previous one (sim_node lockstep_timeout): no stale step on a loaded "
+                                       "machine (issue 35.4)"),
+    "training_reference_timeout": (0.5, "s; the controller's reference_timeout in the demo's training phases: it "
+                                        "waits this long for a reference before carrying an older one forward"),
+}, owner=__name__)
+TRAINING_LOCKSTEP_TIMEOUT = defaults.get("demo.training_lockstep_timeout")
+TRAINING_REFERENCE_TIMEOUT = defaults.get("demo.training_reference_timeout")
 #: the observer and controller nodes' parameters of the training runs (defaults ``demo.initial_gains``)
 INITIAL_GAINS = defaults.get("demo.initial_gains")
 
@@ -89,6 +99,8 @@ class _Story:
         self.log = log
         self.settle = settle
         self.out = {"phases": [], "real_time_factor": {}}
+        self.held = False            # the simulation steps only as far as the workflow lets it
+        self.reference_timeout = None
 
     def start_suite(self, *, seed, initial, inflation):
         """Start the simulated arm, reference, observer, controller and synthesis node. The
@@ -100,7 +112,12 @@ class _Story:
         # the initial gains run before any model exists (identification data): explicitly
         # uncertified; the synthesised gains are certified against the synthesised model
         common = {"joints": JOINTS, "allow_uncertified": True}
-        cmd.start("sim_node", {"seed": seed, "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT})
+        # held (measurement_limit 0) until the loop is up, and stepped a fixed count per phase
+        # until the monitor starts (issue 35.4); a step waits up to TRAINING_LOCKSTEP_TIMEOUT for
+        # its command, the controller up to TRAINING_REFERENCE_TIMEOUT for its reference: the
+        # training recordings are a function of the seed, not of the machine's load
+        cmd.start("sim_node", {"seed": seed, "calibrated": True, "measurement_limit": 0,
+                               "lockstep_timeout": TRAINING_LOCKSTEP_TIMEOUT})
         cmd.start("reference_node", {"seed": seed})
         cmd.start("observer_node", {**common, **initial})
         # use_sim_time: the stop without estimates is timed on the lockstep simulation's clock
@@ -112,6 +129,25 @@ class _Story:
         # before the inflation is calibrated, for the sets as identified
         cmd.start("synthesis_node", {"workdir": str(workdir / "synthesis"), "extra_args": extra,
                                      "inflation": float(inflation or 0.0)})
+        cmd.wait_for_loop()
+        values, why = get_remote_parameters(cmd, "controller_node", ["reference_timeout"])
+        if values is None:
+            raise RuntimeError(f"controller node: {why}")
+        self.reference_timeout = float(values["reference_timeout"])     # its own, for the monitored run
+        cmd.set_parameters("controller_node", {"reference_timeout": float(TRAINING_REFERENCE_TIMEOUT)},
+                           refused="controller node")
+        self.held = True
+
+    def release(self):
+        """The simulation runs on without a step limit, with the monitored run's timeouts: a
+        command or reference later than LOCKSTEP_TIMEOUT (below the monitor's watchdog) or the
+        controller's default ``reference_timeout`` is then a late one, as on a real arm."""
+        cmd = self.cmd
+        cmd.set_parameters("sim_node", {"lockstep_timeout": LOCKSTEP_TIMEOUT}, refused="sim node")
+        cmd.set_parameters("controller_node", {"reference_timeout": self.reference_timeout},
+                           refused="controller node")
+        cmd.release_sim()
+        self.held = False
 
     def record_phase(self, name, seconds, topics, path):
         """A recorder started (stopped with the others if a phase fails); ``(process, sim ns)``."""
@@ -122,7 +158,7 @@ class _Story:
 
     def timed(self, name, seconds, **kw):
         """Spin ``seconds`` of simulated time; the phase's real-time factor goes to ``out``."""
-        met, rtf = self.cmd.spin_sim(seconds, **kw)
+        met, rtf = self.cmd.run_steps(seconds) if self.held and not kw else self.cmd.spin_sim(seconds, **kw)
         self.out["real_time_factor"][name] = round(rtf, 3)
         return met
 
@@ -130,6 +166,7 @@ class _Story:
         """A training recording ``recording`` of ``seconds`` simulated s (timed as ``phase``)."""
         rec, _ = self.record_phase(recording, seconds, CORE_TOPICS, path)
         self.timed(phase, seconds)
+        self.cmd.spin_for(0.5)     # held: the last step's estimate and commands reach the recorder
         self.cmd.stop_processes([rec])
 
     def train_and_synthesize(self, *, train, initial, inflation):
@@ -150,6 +187,8 @@ class _Story:
         if not res.success:
             raise RuntimeError(f"synthesis failed: {res.message}")
         log(f"[demo] synthesised and applied: {res.message}")
+        # the held arm switched gains: the switch's transient settles before the next recording
+        self.timed("settle after the new gains", self.settle)
         # 3. run with the new gains, re-identify the sets (paper Sec. III-D, iteration 2)
         bag2 = workdir / "train_new_gains"
         self.training_bags = [bag1, bag2]
@@ -209,6 +248,7 @@ class _Story:
                      + ", ".join(f"{j} {v:.4g}" for j, v in per_joint.items())
                      + "); the monitor's sets are a detection threshold here, not a guarantee")
         mdl.save(monitor, monitor_model)
+        self.release()
         # the monitor starts with its model and a stop (not ready): the controller brakes and
         # holds the arm, the reference rests at it, k*+1 checked ticks of the held arm release
         # the stop, and the reference restarts from the arm's position (no jump); the loop
