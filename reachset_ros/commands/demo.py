@@ -107,14 +107,22 @@ def run(args):
     summary["guarantee_failures"] = guarantee_failures(summary)
     (workdir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     emit(args, summary, human_summary(summary))
-    if summary["failures"]:
-        print("reachset demo: the story did not hold: " + "; ".join(summary["failures"]), file=sys.stderr)
-        return 1
+    line, status = verdict_line(summary, workdir / "summary.json")
+    # the last line: on stdout after the human summary, on stderr beside --json's one object
+    print(line, file=sys.stderr if args.json or status else sys.stdout, flush=True)
+    return status
+
+
+def verdict_line(summary, path):
+    """The demo's final line and exit status: ``PASS`` when the story (no stop before the fault,
+    the fault stopped, the arm at rest) and the guarantee held, else ``FAIL`` with what did
+    not; either names the summary file."""
+    failed = [f"the story did not hold: {'; '.join(summary['failures'])}"] if summary["failures"] else []
     if summary["guarantee_failures"]:
-        print("reachset demo: the guarantee did not hold: " + "; ".join(summary["guarantee_failures"]),
-              file=sys.stderr)
-        return 1
-    return 0
+        failed.append(f"the guarantee did not hold: {'; '.join(summary['guarantee_failures'])}")
+    if failed:
+        return f"reachset demo: FAIL: {' / '.join(failed)} (details: {path})", 1
+    return f"reachset demo: PASS: the story and the guarantee held (details: {path})", 0
 
 
 #: The demo's promise on the detection latency (issue 16.3), on the simulation's stamp clock.

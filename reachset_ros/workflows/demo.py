@@ -47,6 +47,10 @@ defaults.register("demo", {
                                        "(training, synthesis), a step waits this long for its command before holding "
                                        "the previous one (sim_node lockstep_timeout): no stale step on a loaded "
                                        "machine (issue 35.4)"),
+    "reference_lead": (1.0, "share of the reference node's moves led by one joint (in turn) at the class' full "
+                            "qd_max and qdd_max (reference_node lead): the demo's 20 s training recordings reach the "
+                            "class' limits on every joint, so the calibration's folds see each joint's need (issue "
+                            "35.3; 0.0 left joints at a third of qd_max and calibrated 2.0-5.0)"),
     "training_reference_timeout": (0.5, "s; the controller's reference_timeout in the demo's training phases: it "
                                         "waits this long for a reference before carrying an older one forward"),
 }, owner=__name__)
@@ -118,7 +122,7 @@ class _Story:
         # training recordings are a function of the seed, not of the machine's load
         cmd.start("sim_node", {"seed": seed, "calibrated": True, "measurement_limit": 0,
                                "lockstep_timeout": TRAINING_LOCKSTEP_TIMEOUT})
-        cmd.start("reference_node", {"seed": seed})
+        cmd.start("reference_node", {"seed": seed, "lead": float(defaults.get("demo.reference_lead"))})
         cmd.start("observer_node", {**common, **initial})
         # use_sim_time: the stop without estimates is timed on the lockstep simulation's clock
         cmd.start("controller_node", {**common, **initial, "wait_for_monitor": False, "use_sim_time": True,

@@ -43,6 +43,9 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
                          capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-2000:]
     res = json.loads(out.stdout)
+    # the last line names the verdict and the summary file (issue 36.6), on stderr beside --json
+    last = out.stderr.strip().splitlines()[-1]
+    assert last.startswith("reachset demo: PASS") and "summary.json" in last, last
     fault, stop = res["fault_injected_ns"], res["safe_stop_ns"]
     assert fault is not None and stop is not None
     assert res["failures"] == [] and res["early_stop"] is None
