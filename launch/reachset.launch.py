@@ -3,21 +3,20 @@
     ros2 launch reachset_ros reachset.launch.py sim:=true model:=/abs/path/MODEL.yaml \\
         params_file:=/abs/path/params.yaml workdir:=/abs/path/run1
 
-The same suite, parameters and precedence as ``reachset up`` (docs/nodes.md, "Bringing
-the suite up"), which stands in for this file in the PyPI-based environment where
-``launch`` is not installed: with ``sim:=true`` ``sim_node`` and ``reference_node``, then
-``observer_node``, ``controller_node`` (``wait_for_monitor: true``), ``monitor_node``,
-``synthesis_node``. Each node gets, lowest precedence first: the defaults below,
-``params_file`` (its ``/**`` and node sections, as rcl reads them; none by default, as for
-``reachset up``: the nodes' own defaults; the package's ``config/lwa4p.yaml`` is installed
-to ``share/reachset_ros/config/``), then ``model_file`` (``model:=``, on the nodes that take a
-model) and the paths under ``workdir:=`` (the monitor's offending windows, the synthesis
-node's models). ``ros2 launch`` starts the nodes together rather than one after the
-other; the nodes do not depend on the order (the controller holds the arm until the
-monitor's latched ``/safe_stop`` state reaches it). The DDS domain is the caller's
+The same suite and parameters as ``reachset up`` (docs/nodes.md, "Bringing the suite up"),
+which stands in for this file in the PyPI-based environment where ``launch`` is not
+installed: both take the plan of :func:`reachset_ros.nodes.bringup.plan` (with ``sim:=true``
+``sim_node`` and ``reference_node``, then ``observer_node``, ``controller_node``,
+``monitor_node`` when there is a model, ``synthesis_node``; the defaults, the parameter
+file's ``/**`` and node sections, ``model_file`` and the model's gains; without a model the
+suite runs unmonitored). ``workdir:=`` holds the monitor's offending windows and the
+synthesis node's models (default ``./reachset_run``). ``ros2 launch`` starts the nodes
+together rather than one after the other; the nodes do not depend on the order (the
+controller holds the arm until the monitor's latched ``/safe_stop`` state reaches it). The DDS domain is the caller's
 ``ROS_DOMAIN_ID`` (``reachset up`` picks a fresh one). Ctrl-C stops every node.
 """
 import os
+from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
@@ -25,42 +24,23 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch_ros.actions import Node
 
 PACKAGE = "reachset_ros"
-#: the suite in start-up order; SIM_NODES only with sim:=true
-SUITE = ("sim_node", "reference_node", "observer_node", "controller_node", "monitor_node", "synthesis_node")
-SIM_NODES = ("sim_node", "reference_node")
-#: nodes that get model:= as their model_file (a node that does not declare it ignores it)
-MODEL_NODES = ("observer_node", "controller_node", "monitor_node", "synthesis_node")
-
-
-def defaults(node, workdir, sim=False):
-    """Parameters under the parameter file (as ``reachset up``'s ``bringup.defaults``)."""
-    pair = {"allow_uncertified": True} if sim else {}
-    clock = {"use_sim_time": True} if sim else {}     # the stop without estimates on the simulation's clock
-    out = {"controller_node": {"wait_for_monitor": True, **pair, **clock}, "observer_node": dict(pair)}.get(node, {})
-    if workdir:
-        out = {**out, **{"monitor_node": {"window_dir": os.path.join(workdir, "windows")},
-                         "synthesis_node": {"workdir": os.path.join(workdir, "synthesis")}}.get(node, {})}
-    return out
 
 
 def suite(context):
-    """The Node actions, from the resolved launch arguments."""
+    """The Node actions, from the resolved launch arguments: ``reachset up``'s plan
+    (:func:`reachset_ros.nodes.bringup.plan`, one home for the suite, its defaults, the
+    parameter file's sections, the model and its gains), each node with its parameters."""
+    from reachset_ros import params_file as pf
+    from reachset_ros.nodes import bringup
     arg = context.launch_configurations
     sim = arg.get("sim", "false").lower() in ("true", "1", "yes")
     params_file, model, workdir = arg.get("params_file", ""), arg.get("model", ""), arg.get("workdir", "")
-    if model:
-        model = os.path.abspath(model)
-    if workdir:
-        workdir = os.path.abspath(workdir)
-    actions = []
-    for node in SUITE:
-        if node in SIM_NODES and not sim:
-            continue
-        overrides = {"model_file": model} if model and node in MODEL_NODES else {}
-        parameters = [p for p in (defaults(node, workdir, sim), params_file, overrides) if p]
-        actions.append(Node(package=PACKAGE, executable=node, name=node, output="screen",
-                            emulate_tty=True, parameters=parameters))
-    return actions
+    workdir = os.path.abspath(workdir) if workdir else os.path.join(os.getcwd(), "reachset_run")
+    plan = bringup.plan(pf.load(params_file) if params_file else {}, sim, Path(workdir),
+                        Path(os.path.abspath(model)) if model else None)
+    return [Node(package=PACKAGE, executable=node, name=node, output="screen", emulate_tty=True,
+                 parameters=[params] if params else [])
+            for node, params in plan.items()]
 
 
 def generate_launch_description():

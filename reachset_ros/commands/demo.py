@@ -228,6 +228,7 @@ def summarize(res, record, workdir):
                                                    .get("joints", {}).items())},
         "second_iteration_failed": res.get("second_iteration_failed"),
         "search_box": res.get("search_box"), "inflation_calibration": res.get("inflation_calibration"),
+        "bringup": res.get("bringup"),      # the parameter file and the `reachset up` command (issue 36.1)
     }
     out["stop_effect"] = stop_effect(record, stop_ns) if stop_ns is not None else None
     try:
@@ -313,4 +314,6 @@ def human_summary(s):
     if s.get("plots"):
         lines.append("plots: " + ", ".join(s["plots"]))
     lines.append(f"recorded: {s['record']}   logs: {s['workdir']}")
+    if s.get("bringup"):
+        lines.append(f"run this suite again (its model, gains and simulated arm): {s['bringup']['command']}")
     return "\n".join(lines)

@@ -24,6 +24,12 @@ NAME = "up"
 HELP = "bring the node suite up in order in a fresh DDS domain; SIGINT/SIGTERM stop it"
 
 
+#: said at the start and once every node is up when no model is given (issue 36.1)
+UNMONITORED = ("UNMONITORED: no model (--model, or model_file in the monitor's section of the parameter file), so "
+               "no monitor runs and nothing checks the arm or stops it on a fault; the controller does not wait "
+               "for a monitor. Use this only to record identification data")
+
+
 def add_arguments(p):
     p.add_argument("--params-file", metavar="F",
                    help="ROS 2 parameter file (NODE: {ros__parameters: {...}} and /** sections) whose sections "
@@ -96,8 +102,12 @@ def run(args):
                                         for p in procs]}, sort_keys=True), flush=True)
         log(f"all {len(procs)} nodes up in ROS_DOMAIN_ID={domain}; `export ROS_DOMAIN_ID={domain}` to reach "
             f"them; Ctrl-C or SIGTERM stops them")
+        if bringup.unmonitored(nodes):
+            log(UNMONITORED)
 
     log(f"logs and parameter files in {workdir}")
+    if bringup.unmonitored(nodes):
+        log(UNMONITORED)
     with processes.StopRequest() as stop:
         res = bringup.run(nodes, workdir, env, domain, stop, log=log, timeout=args.timeout, on_ready=ready)
     if res.status == 0:

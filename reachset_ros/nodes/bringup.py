@@ -25,6 +25,8 @@ SUITE = ("sim_node", "reference_node", "observer_node", "controller_node", "moni
 SIM_NODES = ("sim_node", "reference_node")
 #: nodes that get ``--model`` as their ``model_file`` (a node that does not declare it ignores it)
 MODEL_NODES = ("observer_node", "controller_node", "monitor_node", "synthesis_node")
+#: nodes that start with the gains ``--model`` carries (:func:`model_gains`)
+GAIN_NODES = ("observer_node", "controller_node")
 
 
 def defaults(node: str, workdir: Path, sim: bool = False) -> dict:
@@ -64,18 +66,67 @@ def plan(sections: dict, sim: bool, workdir: Path, model: Path | None = None) ->
     -------
     dict
         ``{node: parameters}`` in start-up order: :func:`defaults`, then the file's ``/**``
-        section, then the node's own section, then ``model_file``.
+        section, then the node's own section, then ``model_file`` and, for the observer and
+        the controller, the model's gains (:func:`model_gains`; ``allow_uncertified`` false
+        unless the file sets it). Without a model (neither ``model`` nor a ``model_file`` in
+        the monitor's section) the monitor is not started, since it cannot check anything,
+        and the controller does not wait for it: the suite runs UNMONITORED
+        (:func:`unmonitored`), as for recording identification data.
     """
     from ..params_file import for_node
     out = {}
+    monitored = model is not None or bool(for_node(sections, "monitor_node").get("model_file"))
     for node in SUITE:
         if node in SIM_NODES and not sim:
             continue
-        params = {**defaults(node, workdir, sim), **for_node(sections, node)}
+        if node == "monitor_node" and not monitored:
+            continue          # a monitor without a model does not run (issue 34.1): UNMONITORED
+        own = for_node(sections, node)
+        params = {**defaults(node, workdir, sim), **own}
+        if node == "controller_node" and not monitored:
+            params["wait_for_monitor"] = bool(own.get("wait_for_monitor", False))   # none will come
         if model is not None and node in MODEL_NODES:
             params["model_file"] = str(model)
+            if node in GAIN_NODES:
+                params.update(model_gains(model, node, params))
+                # the model's gains are certified for it: they start through the gate unless the
+                # file explicitly allows uncertified gains
+                params["allow_uncertified"] = bool(own.get("allow_uncertified", False))
         out[node] = params
     return out
+
+
+def unmonitored(nodes: dict) -> bool:
+    """True when the plan (:func:`plan`) starts no monitor: nothing checks the arm."""
+    return "monitor_node" not in nodes
+
+
+def model_gains(model: Path, node: str, params: dict) -> dict:
+    """The gains a model file carries (per joint, written by the synthesis) as the start
+    parameters of ``node`` (``observer_node`` or ``controller_node``), in the order of its
+    ``joints``: ``reachset up --model M`` runs the gains M was synthesised and certified for,
+    which the node certifies at start against M (:func:`~reachset_ros.systems.gains.certify_pair`)
+    as it does any gain change. The synthesis node's own mapping
+    (:func:`~reachset_ros.nodes.synthesis_node.target_values`); empty when the model has no
+    gains (an identified, not synthesised, model). Raises ReachsetError naming the model when
+    its gains do not fit the node (a joint it does not have, two observer types)."""
+    from ..conformance import model as mdl
+    from ..errors import ReachsetError
+    from ..robot.dynamics import JOINT_NAMES
+    from ..systems.gains import DEFAULTS, TYPE_KEYS
+    from .gain_params import default_u_max
+    from .synthesis_node import TARGET_KEYS, target_values
+    synthesis = {n: dict(j.gains) for n, j in mdl.load(model).joints.items() if j.gains}
+    if not synthesis:
+        return {}
+    keys = TARGET_KEYS[node]
+    start = {"joints": list(JOINT_NAMES), "u_max": default_u_max(), **{t: DEFAULTS[t] for t in TYPE_KEYS},
+             **{k: [float(DEFAULTS[k])] for k in keys if k in DEFAULTS}}
+    current = {k: params.get(k, v) for k, v in start.items()}
+    values, why = target_values(node, current, synthesis, [k for k in keys if k in current])
+    if values is None:
+        raise ReachsetError(f"{model}: its gains do not fit {why}")
+    return values
 
 
 @dataclass

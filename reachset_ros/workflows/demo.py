@@ -91,6 +91,7 @@ def run_demo(*, workdir: Path, record: Path, duration: float, fault_at: float | 
         res, inflation = story.train_and_synthesize(train=train, initial=initial, inflation=inflation)
         story.apply_monitor_model(res, inflation=inflation, calibrate=calibrate)
         story.monitored_run(record=record, duration=duration, fault_at=fault_at, fault=fault)
+        story.out["bringup"] = write_bringup(workdir=workdir, seed=seed, model=Path(story.out["monitor_model"]))
         return story.out
 
 
@@ -293,6 +294,23 @@ class _Story:
         out["safe_stop"] = ({"reason": active[0].reason, "kind": active[0].kind, "joint": active[0].joint,
                              "step": active[0].step, "window_bag": active[0].window_bag} if active else None)
         out["record"] = str(record)
+
+
+def write_bringup(*, workdir, seed, model):
+    """``WORKDIR/bringup.params.yaml``: the demo's simulated arm, reference, controller and
+    monitor settings as a ROS 2 parameter file, and the ``reachset up`` command that runs the
+    suite again with it and the monitor's model (whose gains ``up --model`` applies, issue
+    36.1). Returns ``{"params_file", "command"}``."""
+    from ..atomic import write_yaml
+    path = Path(workdir).resolve() / "bringup.params.yaml"
+    doc = {"sim_node": {"seed": int(seed), "calibrated": True, "lockstep_timeout": LOCKSTEP_TIMEOUT},
+           "reference_node": {"seed": int(seed), "lead": float(defaults.get("demo.reference_lead"))},
+           "controller_node": {"robot_params": str(default_nominal_path())},
+           "monitor_node": {"max_missing_ticks": 125}}
+    write_yaml(path, {n: {"ros__parameters": p} for n, p in doc.items()},
+               header="# written by reachset demo: the suite of the demo, run again with\n"
+                      f"#   reachset up --sim --params-file {path} --model {model}\n")
+    return {"params_file": str(path), "command": f"reachset up --sim --params-file {path} --model {model}"}
 
 
 def synthesis_arguments():

@@ -403,21 +403,60 @@ def test_launch_file_compiles_and_starts_the_same_suite(tmp_path, monkeypatch):
     assert args == {"sim": "false", "model": "", "params_file": "", "workdir": ""}
     opaque = [a for a in actions if "function" in a.kw][0]
     params = tmp_path / "p.yaml"
-    model = tmp_path / "m.yaml"
+    params.write_text(yaml.safe_dump({"sim_node": {"ros__parameters": {"seed": 4}}}))
+    model = synthesised_model(tmp_path / "m.yaml")
     work = tmp_path / "w"
     context = types.SimpleNamespace(launch_configurations={"sim": "true", "model": str(model),
                                                            "params_file": str(params), "workdir": str(work)})
     nodes = opaque.kw["function"](context)
-    plan = bringup.plan({}, True, work, model)
+    plan = bringup.plan(params_file.load(params), True, work, model)
     assert [n.kw["name"] for n in nodes] == [n.kw["executable"] for n in nodes] == list(plan)
     for n in nodes:
-        ps = n.kw["parameters"]
-        files = [i for i, p in enumerate(ps) if isinstance(p, str)]
-        assert [ps[i] for i in files] == [str(params)]             # defaults below it, model_file above
-        below, above = ps[:files[0]], ps[files[0] + 1:]
-        assert {k: v for d in below + above for k, v in d.items()} == plan[n.kw["name"]], n.kw["name"]
-        assert all("model_file" not in d for d in below)
-    context.launch_configurations = {"sim": "false", "model": "", "params_file": "", "workdir": ""}
+        assert n.kw["parameters"] == ([plan[n.kw["name"]]] if plan[n.kw["name"]] else []), n.kw["name"]
+    context.launch_configurations = {"sim": "false", "model": "", "params_file": "", "workdir": str(work)}
     nodes = opaque.kw["function"](context)
     assert [n.kw["name"] for n in nodes] == list(bringup.plan({}, False, work))
-    assert [p for n in nodes for p in n.kw["parameters"]] == [{"wait_for_monitor": True}]
+    assert "monitor_node" not in [n.kw["name"] for n in nodes]          # no model: unmonitored
+
+
+def synthesised_model(path, omega=22.5):
+    """A six-joint model whose joints carry synthesised gains (as ``synthesize`` writes them)."""
+    from reachset_ros.conformance import model as mdl
+    from reachset_ros.conformance.estimators import Estimator
+    from reachset_ros.robot.dynamics import JOINT_NAMES
+    from reachset_ros.systems.plant import lwa4p_joint_plant
+    gains = {"observer": "hg", "controller": "static", "omega": omega, "zeta": 1.1, "h1": 15.0, "h2": 30.0,
+             "eps": 0.01}
+    js = {j: mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, 25, dict(gains, omega=omega + i))
+          for i, j in enumerate(JOINT_NAMES)}
+    mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 25, js,
+                                  input_source=mdl.PLANT_INPUT), path)
+    return Path(path)
+
+
+def test_up_with_a_model_starts_the_pair_with_its_gains_through_the_gate(tmp_path):
+    """Issue 36.1. Before: ``up --model M`` gave the observer and controller M as their model but
+    their start-up gains (omega 10, not the 22.6 M was synthesised for), with ``allow_uncertified``
+    under ``--sim``; and without a model it started a monitor that cannot check (it exits 2).
+    Now the pair starts with M's gains, per joint in the node's joint order, certified at start
+    (``allow_uncertified`` false unless the file says so); without a model no monitor starts,
+    the controller does not wait for one, and ``up`` says UNMONITORED."""
+    from reachset_ros.nodes import bringup
+    from reachset_ros.robot.dynamics import JOINT_NAMES
+    model = synthesised_model(tmp_path / "m.yaml")
+    plan = bringup.plan({}, True, tmp_path, model)
+    for node in ("observer_node", "controller_node"):
+        p = plan[node]
+        assert p["omega"] == [22.5 + i for i in range(len(JOINT_NAMES))] and p["zeta"] == [1.1] * len(JOINT_NAMES)
+        assert p["observer"] == "hg" and p["controller"] == "static" and p["allow_uncertified"] is False
+        assert p["model_file"] == str(model)
+    assert not bringup.unmonitored(plan) and plan["controller_node"]["wait_for_monitor"] is True
+    # a file that orders the joints differently gets each joint's own gains
+    order = list(reversed(JOINT_NAMES))
+    p = bringup.plan({"controller_node": {"joints": order}}, True, tmp_path, model)["controller_node"]
+    assert p["omega"] == [22.5 + JOINT_NAMES.index(j) for j in order]
+    bare = bringup.plan({}, True, tmp_path, None)
+    assert bringup.unmonitored(bare) and "monitor_node" not in bare
+    assert bare["controller_node"]["wait_for_monitor"] is False and "omega" not in bare["controller_node"]
+    from reachset_ros.commands.up import UNMONITORED
+    assert UNMONITORED.startswith("UNMONITORED")
