@@ -21,7 +21,9 @@ from reachset_ros.nodes.common import MONITOR_NOT_READY, MONITOR_STARTED, SAFE_S
 pytestmark = pytest.mark.dds   # real DDS participants / node processes
 
 
-def call(node, srv_type, name, req, timeout=20.0):
+def call(node, srv_type, name, req, timeout=120.0):
+    """Call a service of a node process; the timeout only bounds a hang (a node process can take
+    over 20 s to start on the loaded 2-core machine: the service was once not there in time)."""
     cli = node.create_client(srv_type, name)
     try:
         assert cli.wait_for_service(timeout_sec=timeout), f"{name} not available"
@@ -89,7 +91,7 @@ def test_monitor_lifecycle(ros, tmp_path):
 
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_UNCONFIGURED
         stops = rec.msgs["safe_stop"]
-        assert rec.wait(lambda: any(m.active and m.kind == "manual" for _, m in stops), 20)
+        assert rec.wait(lambda: any(m.active and m.kind == "manual" for _, m in stops), 60)
         send(0, 100)                                     # unconfigured: nothing is checked
         time.sleep(0.5)
         assert not rec.msgs["conformance/status"]
@@ -98,17 +100,17 @@ def test_monitor_lifecycle(ros, tmp_path):
         assert transition(ros, "monitor_node", Transition.TRANSITION_ACTIVATE)
         assert state(ros, "monitor_node") == State.PRIMARY_STATE_ACTIVE
         # the lifecycle's stop becomes the start-up stop, not a release
-        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "not_ready", 20)
+        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "not_ready", 60)
         assert stops[-1][1].reason.startswith(MONITOR_NOT_READY)
         send(100, 700)
         status = rec.msgs["conformance/status"]
-        assert rec.wait(lambda: len(status) >= 590, 30), len(status)
+        assert rec.wait(lambda: len(status) >= 590, 60), len(status)
         assert all(min(m.margin) >= 0 for _, m in status)            # conformant data: no violation
         held = [m for _, m in status if m.safe_stop_active]          # released after k*+1 checked ticks
         assert [m.active_test_cases for m in held].count(HORIZON + 1) == HORIZON + 1
-        assert rec.wait(lambda: not stops[-1][1].active and stops[-1][1].reason == MONITOR_STARTED, 20)
+        assert rec.wait(lambda: not stops[-1][1].active and stops[-1][1].reason == MONITOR_STARTED, 60)
         assert transition(ros, "monitor_node", Transition.TRANSITION_DEACTIVATE)
-        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "manual", 20)
+        assert rec.wait(lambda: stops[-1][1].active and stops[-1][1].kind == "manual", 60)
         n = len(status)
         send(700, 800)
         time.sleep(0.5)
@@ -163,20 +165,20 @@ def test_controller_lifecycle(ros, tmp_path):
         assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
         tick()
         brakes = rec.msgs["brake_command"]
-        assert rec.wait(lambda: brakes and all(brakes[-1][1].engage), 20)    # inactive: held, brakes on
+        assert rec.wait(lambda: brakes and all(brakes[-1][1].engage), 60)    # inactive: held, brakes on
         inputs = rec.msgs["plant_input"]
         assert all(np.allclose(m.acceleration, 0.0, atol=1e-9) for _, m in inputs)
         assert transition(ros, "controller_node", Transition.TRANSITION_ACTIVATE)
         n = len(inputs)
         tick(50)
-        assert rec.wait(lambda: len(inputs) > n + 10, 20)
+        assert rec.wait(lambda: len(inputs) > n + 10, 60)
         _, last = inputs[-1]
         # the certified law (omega 10, zeta 1: 100 (q_d - q) + 20 (qd_d - qd)) towards the reference
         assert last.acceleration == pytest.approx([100.0 * 0.2, 100.0 * 0.3], abs=1e-9)
         assert not any(brakes[-1][1].engage)                                 # active: released
         assert transition(ros, "controller_node", Transition.TRANSITION_DEACTIVATE)
         tick()
-        assert rec.wait(lambda: all(brakes[-1][1].engage), 20)              # deactivate: brakes and hold
+        assert rec.wait(lambda: all(brakes[-1][1].engage), 60)              # deactivate: brakes and hold
         assert state(ros, "controller_node") == State.PRIMARY_STATE_INACTIVE
     finally:
         processes.stop([bad, ctl])
@@ -226,7 +228,7 @@ def test_lifecycle_transitions_never_clear_a_stop_of_the_controllers_own(ros, tm
         """The brakes commanded after 25 more ticks (their last /brake_command), [] if none came."""
         n = len(brakes)
         tick()
-        if not rec.wait(lambda: len(brakes) >= n + 20, 20):
+        if not rec.wait(lambda: len(brakes) >= n + 20, 60):
             return []
         time.sleep(0.2)
         return list(brakes[-1][1].engage)
@@ -244,16 +246,20 @@ def test_lifecycle_transitions_never_clear_a_stop_of_the_controllers_own(ros, tm
               "stop_category": 1, "wait_for_monitor": True, **NO_VERDICTS}
     mon = processes.start("monitor_lifecycle_node", {"model_file": str(write_model(tmp_path / "m.yaml")),
                                                   "window_dir": str(tmp_path / "w"), "reset_clean_ticks": 0,
-                                                  "max_missing_ticks": 10000}, tmp_path, node_name="monitor_node")
+                                                  # the test's bursts of ticks can overflow a starved
+                                                  # monitor's queue on a loaded machine: a repeated loss
+                                                  # is a coverage stop (gap_window) this test is not about
+                                                  "max_missing_ticks": 10000, "gap_window": 0},
+                          tmp_path, node_name="monitor_node")
     ctl = processes.start("controller_lifecycle_node", params, tmp_path, node_name="controller_node")
     try:
         for tid in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
             assert transition(ros, "monitor_node", tid)
             assert transition(ros, "controller_node", tid)
         assert rec.wait(lambda: monitor_released(0), 60), [s.reason for _, s in stops][-3:]
-        assert rec.wait(released, 30), ctl.log.read_text()[-1500:]
+        assert rec.wait(released, 60), ctl.log.read_text()[-1500:]
         tick(1, position=(float("nan"), 0.0))                               # a stop of its own
-        assert rec.wait(lambda: "stop: no usable estimate" in ctl.log.read_text(), 20), ctl.log.read_text()[-1500:]
+        assert rec.wait(lambda: "stop: no usable estimate" in ctl.log.read_text(), 60), ctl.log.read_text()[-1500:]
         assert engaged()
         cycles = [("controller_node", (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE)),
                   ("controller_node", (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP,
@@ -271,8 +277,8 @@ def test_lifecycle_transitions_never_clear_a_stop_of_the_controllers_own(ros, tm
         # the audited reset (a PRIVILEGED line at the monitor) gives control back
         res = call(ros, Trigger, "/monitor_node/reset", Trigger.Request())
         assert res.success, res.message
-        assert rec.wait(lambda: stops[-1][1].reason.startswith(AUDITED_RESET), 20)
-        assert rec.wait(released, 30), ctl.log.read_text()[-1500:]
+        assert rec.wait(lambda: stops[-1][1].reason.startswith(AUDITED_RESET), 60)
+        assert rec.wait(released, 60), ctl.log.read_text()[-1500:]
         assert "PRIVILEGED safe-stop reset" in mon.log.read_text()
     finally:
         processes.stop([ctl, mon])
