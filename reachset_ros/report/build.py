@@ -80,6 +80,7 @@ class ReportData:
 
     model_path: str
     model: object
+    thm: object                   # the model's Theorem-1 rows (ConformanceModel.theorem1)
     model_id: str
     joints: tuple
     runs: tuple                   # BagRun per bag
@@ -101,6 +102,8 @@ class ReportData:
         return {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
                 "stops": [{"bag": r.path, "t_s": e.t_s, "stamp_ns": e.stamp_ns, "joint": e.joint, "reason": e.reason}
                           for r in self.runs for e in r.events if e.kind == "stop"],
+                "fault_onsets": [{"bag": r.path, "t_s": e.t_s, "stamp_ns": e.stamp_ns}
+                                 for r in self.runs for e in r.events if e.kind == "fault onset"],
                 "model_id": self.model_id}
 
 
@@ -115,7 +118,8 @@ def _events(bag, start_ns):
     out = []
     try:
         for topic, _t, m in bg.read_messages([bag], [bg.SAFE_STOP_TOPIC, bg.FAULT_ONSET_TOPIC]):
-            st = bg.header_stamp_ns(m)
+            # a fault onset is a std_msgs/Header itself
+            st = bg.header_stamp_ns(m) if topic == bg.SAFE_STOP_TOPIC else int(m.stamp.sec) * 10**9 + int(m.stamp.nanosec)
             if topic == bg.SAFE_STOP_TOPIC:
                 kind = "stop" if m.active else "reset"
                 out.append(BagEvent(kind=kind, stamp_ns=st, t_s=(st - start_ns) * 1e-9, joint=str(m.joint),
@@ -126,7 +130,8 @@ def _events(bag, start_ns):
         raise
     except Exception as e:     # rosbags' decoding errors have no common base class
         raise ReachsetError(f"{bag}: {bg.SAFE_STOP_TOPIC} or {bg.FAULT_ONSET_TOPIC} unreadable ({first_line(e)})") from e
-    return tuple(sorted(out, key=lambda e: e.stamp_ns))
+    # the monitor republishes its latched stop: one event per (kind, stamp, joint, reason)
+    return tuple(sorted({(e.kind, e.stamp_ns, e.joint, e.reason): e for e in out}.values(), key=lambda e: e.stamp_ns))
 
 
 def _read_bag(bag, model, joints, topics, options):
@@ -185,7 +190,7 @@ def guarantee_rows(model):
 
 def _describe_gains(g):
     keys = [k for k in ("observer", "controller", "omega", "zeta", "h1", "h2", "h3", "eps", "l1", "l2", "l3") if k in g]
-    return ", ".join(f"{k} {g[k]}" for k in keys)
+    return ", ".join(f"{k} {g[k]:.4g}" if isinstance(g[k], (int, float)) else f"{k} {g[k]}" for k in keys)
 
 
 def build_report(bags, model, *, joints=None, topics=(bg.JOINT_STATES, bg.PLANT_INPUT), options=None, command="",
@@ -226,6 +231,6 @@ def build_report(bags, model, *, joints=None, topics=(bg.JOINT_STATES, bg.PLANT_
             longest[n] = max(longest.get(n, 0), max((b - a for a, b in s.segments), default=0))
     require_runs(longest, m.estimator.history, m.horizon, [str(b) for b in bags])
     names = tuple(runs[0].joints)
-    return ReportData(model_path=str(model), model=m, model_id=mdl.file_sha256(model)[:12], joints=names,
+    return ReportData(model_path=str(model), model=m, thm=thm, model_id=mdl.file_sha256(model)[:12], joints=names,
                       runs=tuple(runs), devs={n: combine(v) for n, v in devs.items()}, guarantee=guarantee_rows(m),
                       command=command)

@@ -61,16 +61,16 @@ def _panel(ax, name, run):
         # a NaN deviation's use is infinite (fail closed): drawn at the top of the axis
         ax.plot(vt, np.where(np.isfinite(vu), vu, top), "x", color="tab:red", ms=4,
                 label=f"violations ({j.violations} ticks, first at {vt[0]:.3f} s)")
-    for ev in run.events:
-        col = {"stop": "tab:red", "reset": "tab:green"}.get(ev.kind, "0.3")
-        ax.axvline(ev.t_s, color=col, ls="--", lw=1, label=f"{ev.kind} at {ev.t_s:.3f} s")
+    for kind, col in (("stop", "tab:red"), ("reset", "tab:green"), ("fault onset", "0.3")):
+        ts = [ev.t_s for ev in run.events if ev.kind == kind]
+        if ts:        # one line per event, one legend entry per kind (a campaign's bag has hundreds)
+            ax.vlines(ts, 0.0, 1.0, transform=ax.get_xaxis_transform(), colors=col, linestyles="--", lw=1,
+                      label=f"{kind} at {ts[0]:.3f} s" if len(ts) == 1 else f"{kind} ({len(ts)}, first at {ts[0]:.3f} s)")
     ax.set_ylim(0.0, top)
     ax.set_xlabel("time from the bag's start [s]")
     ax.set_ylabel("set use")
     ax.set_title(f"{name}: {Path(run.path).name}", fontsize=9)
-    handles, labels = ax.get_legend_handles_labels()
-    keep = dict(zip(labels, handles))
-    ax.legend(list(keep.values())[:8], list(keep)[:8], fontsize=7, loc="upper left")
+    ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
 
 

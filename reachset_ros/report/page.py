@@ -92,7 +92,6 @@ def _events_table(rep):
 
 
 def _joint_section(rep, name):
-    thm = rep.model.theorem1()
     s = rep.summary()["joints"][name]
     verdict = ("<span class='ok'>conformant</span>" if s["violations"] == 0 else
                f"<span class='bad'>NOT conformant: {s['violations']} violating ticks</span>")
@@ -114,7 +113,7 @@ def _joint_section(rep, name):
             + _table(["bag", "test cases", "violating ticks", "violations [s from the bag's start]",
                       "stops of this joint [s]"], rows)
             + "<h3>Measured deviations against the reachable sets R_a[k]</h3>"
-            + _img(deviations_png(name, rep.model, thm, rep.devs[name]), f"{name}: deviations against R_a")
+            + _img(deviations_png(name, rep.model, rep.thm, rep.devs[name]), f"{name}: deviations against R_a")
             + "<h3>Set use over time</h3>"
             + _img(set_use_png(name, rep.runs), f"{name}: set use over time") + "</section>")
 

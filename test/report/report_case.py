@@ -7,7 +7,8 @@ identified on one of them by the real command line, and a bag with a fault and a
 * ``faulty``: another seed of the same loop with a 0.01 rad sensor bias on ``arm_2_joint`` from
   :data:`FAULT_TICK` on, and a ``/safe_stop`` (active, stamped :data:`STOP_AFTER_TICKS` later,
   as the monitor stamps it with the measurement that triggered it), written by
-  :class:`reachset_ros.bags.BagWriter`.
+  :class:`reachset_ros.bags.BagWriter`, with the ``/sim/fault_onset`` header at the fault and the
+  stop republished :data:`REPUBLISHED` times as the monitor republishes it.
 """
 from pathlib import Path
 
@@ -23,6 +24,8 @@ TICKS = 3000
 FAULT_TICK = 2000
 STOP_AFTER_TICKS = 2
 BIAS = 0.01
+#: messages of the one stop in the bag (the monitor republishes its latched /safe_stop)
+REPUBLISHED = 25
 
 
 def write_faulty(path, recs, stop_stamp):
@@ -38,10 +41,13 @@ def write_faulty(path, recs, stop_stamp):
             t = int(st[k])
             w.write(bags.JOINT_STATES, bags.joint_state(t, JOINTS, Y[k]), t + 200_000)
             w.write(bags.PLANT_INPUT, bags.plant_input(t, JOINTS, U[k]), t + 500_000)
-            if t == stop_stamp:
+            if k == FAULT_TICK:               # the simulator's fault onset: a std_msgs/Header
+                w.write(bags.FAULT_ONSET_TOPIC, bags.header(t), t + 100_000, bags.FAULT_ONSET_TYPE)
+            if t >= stop_stamp and k < FAULT_TICK + STOP_AFTER_TICKS + REPUBLISHED:
+                # the monitor republishes its latched stop, stamped with the triggering measurement
                 w.write(bags.SAFE_STOP_TOPIC, SS(
-                    header=bags.header(t), active=True, reason="arm_2_joint left its reachable set",
-                    kind="violation", joint="arm_2_joint", step=2, test_case_start_ns=t - 8_000_000,
+                    header=bags.header(stop_stamp), active=True, reason="arm_2_joint left its reachable set",
+                    kind="violation", joint="arm_2_joint", step=2, test_case_start_ns=stop_stamp - 8_000_000,
                     deviation=0.01, bound=0.001, window_bag=""), t + 600_000, bags.SAFE_STOP_TYPE)
     return Path(path)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import run_cli
-from report_case import JOINTS, make_case
+from report_case import JOINTS
 
 CHROMIUM = "/usr/bin/chromium"
 #: headless, offline, throw-away profile (the profile directory is appended per call)
@@ -19,10 +19,8 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
-    d = tmp_path_factory.mktemp("browser")
-    case = make_case(d)
-    out = d / "report.html"
+def report(case, tmp_path_factory):
+    out = tmp_path_factory.mktemp("browser") / "report.html"
     p = run_cli("report", case["train"], case["faulty"], "--model", case["model"], "--out", out)
     assert p.returncode == 0, p.stderr
     return out
