@@ -108,7 +108,9 @@ class ReportData:
 
 
 def _finite_max(arrays):
-    vals = [a[~np.isnan(a)] for a in arrays]
+    """The largest finite set use (None: nothing checked). An infinite use (a NaN deviation,
+    which the bag reader's segments never hold) is a violation, counted there; JSON has no inf."""
+    vals = [a[np.isfinite(a)] for a in arrays]
     vals = [v for v in vals if len(v)]
     return float(max(v.max() for v in vals)) if vals else None
 

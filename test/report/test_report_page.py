@@ -121,3 +121,16 @@ def test_bad_input_is_one_line_exit_2_and_nothing_is_written(case, tmp_path, wha
     assert key in lines[0]
     assert out.read_text() == "earlier page"
     assert sorted(x.name for x in tmp_path.iterdir()) == ["report.html"]
+
+
+def test_write_report_is_the_library_call_of_the_command(case, tmp_path):
+    """``write_report(bags, model, out)`` (what the demo and the campaign call) writes the page the
+    command writes and returns the command's JSON with the page's path."""
+    from reachset_ros.report import write_report
+    out = tmp_path / "lib.html"
+    res = write_report([case["faulty"]], case["model"], out)
+    assert res["report"] == str(out) and "<section id='joint-arm_2_joint'" in out.read_text(encoding="utf-8")
+    p = run_cli("report", case["faulty"], "--model", case["model"], "--out", tmp_path / "cli.html", "--json")
+    assert p.returncode == 0, p.stderr
+    cli = json.loads(p.stdout)
+    assert {k: v for k, v in cli.items() if k != "report"} == {k: v for k, v in res.items() if k != "report"}
