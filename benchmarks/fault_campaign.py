@@ -7,7 +7,8 @@ for 50-500 ms, stamp jumps, fault-free stretches; CPU burners on both cores for 
 block of 8 events). Prints the table (docs/reliability.md, "Fault campaign") and writes
 ``campaign.json`` (every outcome and the score) and the safety evidence sheet
 (:mod:`reachset_ros.sim.evidence`: ``evidence.json``, ``evidence.html``; their paths printed)
-to the work directory.
+and the report of its bags against its model (:func:`reachset_ros.report.write_report`:
+``report.html``, its path printed) to the work directory.
 
 Run: ``.venv/bin/python benchmarks/fault_campaign.py --events 480 --seed 1 --quiet 4 8`` (about
 80 minutes of wall time; six training recordings of 40 s, the inflation one grid step above the
@@ -92,6 +93,25 @@ def write_evidence(work, outcomes, info):
     ev = evidence.evidence(outcomes, info=info, apparatus_stops=info.get("apparatus_stops", ()))
     for path in evidence.write(ev, work):
         print(f"evidence: {path}")
+    write_campaign_report(work, outcomes, info)
+
+
+def write_campaign_report(work, outcomes, info):
+    """``report.html``: the campaign's bags checked against its model (``reachset report``); a
+    bag the report cannot read is named and the campaign's result stands."""
+    from reachset_ros.errors import ReachsetError
+    from reachset_ros.report import write_report
+    bags = sorted({o.bag for o in outcomes if o.bag and Path(o.bag).exists()})
+    if not bags or not info.get("model"):
+        return None
+    try:
+        res = write_report(bags, info["model"], work / "report.html",
+                           command=f"reachset report {' '.join(bags)} --model {info['model']} --out {work / 'report.html'}")
+    except ReachsetError as e:
+        print(f"report: not written ({e})")
+        return None
+    print(f"report: {res['report']}")
+    return res["report"]
 
 
 #: the short mode's schedule: 10 events, 7 expecting a stop (two accelerations, a bias, a killed

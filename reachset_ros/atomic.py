@@ -16,16 +16,31 @@ def write_yaml(path, doc, header="", **dump_kwargs):
     to ``yaml.safe_dump`` (``sort_keys=False`` by default). An ``OSError`` (disk full, no
     permission) becomes a :class:`ReachsetError` naming ``path``.
     """
-    p = Path(path)
     dump_kwargs.setdefault("sort_keys", False)
+
+    def fill(f):
+        f.write(header)
+        yaml.safe_dump(doc, f, **dump_kwargs)
+
+    _replace(Path(path), fill)
+
+
+def write_text(path, text):
+    """Write ``text`` (UTF-8) to ``path`` as :func:`write_yaml` writes: a temporary file in the
+    same directory, then a rename; nothing half-written is ever left at ``path``."""
+    _replace(Path(path), lambda f: f.write(text))
+
+
+def _replace(p, fill):
+    """``fill(f)`` a temporary text file beside ``p``, then rename it to ``p`` (atomic); on any
+    error remove it, ``p`` untouched; an ``OSError`` as a :class:`ReachsetError` naming ``p``."""
     try:
         fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".partial", dir=p.parent)
     except OSError as e:
         raise ReachsetError(f"{p}: cannot write ({e.strerror or type(e).__name__})") from e
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(header)
-            yaml.safe_dump(doc, f, **dump_kwargs)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            fill(f)
         os.replace(tmp, p)
     except BaseException as e:
         if os.path.exists(tmp):

@@ -138,6 +138,9 @@ def test_short_fault_campaign_every_fault_stops_the_arm_and_nothing_else_does(tm
     assert sum(c["stopped"] for c in ev["detection"].values()) == s["stops"]
     assert ev["miss_upper_bound"] == pytest.approx(1 - 0.05 ** (1 / s["faults_injected"]))
     assert ev["false_stops"]["false_stops"] == 0 and ev["stops"]["alarms"] == 0
+    # the report of its bags against its model (issue 36.4), its path printed
+    page = tmp_path / "report.html"
+    assert f"report: {page}" in p.stdout and "<section id='joint-arm_1_joint'" in page.read_text()
     assert ev["response"]["detect_ms"]["n"] == s["stamp_latency_ms"]["n"]
     assert p.returncode == 0
 
