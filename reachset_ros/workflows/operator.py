@@ -121,9 +121,10 @@ class Operator:
         self.domain_id = int(domain_id)
         self.expected = list(expected) if expected else [n for n in SUITE if n not in SIM_NODES]
         self.seen = _Seen()
-        commander.create_subscription(JointState, "/joint_states", lambda m: self._arrived("/joint_states"),
-                                      LISTEN_QOS)
-        commander.create_subscription(ConformanceStatus, "/conformance/status", self._on_status, LISTEN_QOS)
+        self.subs = [commander.create_subscription(JointState, "/joint_states",
+                                                   lambda m: self._arrived("/joint_states"), LISTEN_QOS),
+                     commander.create_subscription(ConformanceStatus, "/conformance/status", self._on_status,
+                                                   LISTEN_QOS)]
 
     # ------------------------------------------------------------------ listening
     def _arrived(self, topic):
@@ -152,9 +153,12 @@ class Operator:
         return {n for n, _ in self.commander.get_node_names_and_namespaces()}
 
     def wait_for_suite(self, timeout):
-        """Spin until the monitor is in the graph and its latched ``/safe_stop`` has arrived,
-        or ``timeout`` s; whether it was met."""
-        return self.spin(timeout, until=lambda: MONITOR in self.node_names() and bool(self.commander.stops))
+        """Spin until the monitor is in the graph, its latched ``/safe_stop`` has arrived and the
+        subscriptions of :data:`RATE_TOPICS` have matched a publisher each (so that a rate
+        window counts from its start), or ``timeout`` s; whether the monitor and its state came."""
+        self.spin(timeout, until=lambda: (MONITOR in self.node_names() and bool(self.commander.stops)
+                                          and all(s.get_publisher_count() for s in self.subs)))
+        return MONITOR in self.node_names() and bool(self.commander.stops)
 
     def latest_stop(self):
         """The newest ``/safe_stop`` message, or None."""

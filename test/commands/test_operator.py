@@ -225,8 +225,11 @@ def test_watch_once_prints_each_joints_set_use(suite):
             if line.startswith(("arm_1_joint", "arm_2_joint"))}
     assert set(rows) == {"arm_1_joint", "arm_2_joint"}
     assert all(float(v) >= 0 for v in rows.values())
-    frame = json.loads(cli("watch", "--workdir", str(work), "--once", "--json").stdout)
-    assert set(frame["set_use_peak"]) == {"arm_1_joint", "arm_2_joint"} and frame["stop"]["kind"]
+    out = cli("watch", "--workdir", str(work), "--duration", "1.5", "--json")
+    assert out.returncode == 0, out.stderr
+    frames = [json.loads(line) for line in out.stdout.splitlines()]     # one object per frame
+    assert frames and all(set(f["set_use_peak"]) == {"arm_1_joint", "arm_2_joint"} for f in frames)
+    assert all(f["stop"]["kind"] and f["rates"]["/joint_states"] > 0 for f in frames)
 
 
 def test_stop_latches_a_manual_stop_the_controller_brakes_and_only_the_reset_clears_it(suite):
