@@ -126,3 +126,85 @@ def pick_domain_id(proc="/proc", rng=None) -> int:
     if not free:
         raise ReachsetError(f"no free ROS_DOMAIN_ID in {lo}..{hi}: every one is used by a process on this machine")
     return (rng or random.SystemRandom()).choice(free)
+
+
+# ---------------------------------------------------------------- a running suite's domain
+#: the file ``reachset up`` writes in its working directory: its domain, its pid, its nodes
+STATE_FILE = "up.json"
+
+
+def write_suite_state(workdir, *, domain_id: int, pid: int, nodes=()) -> Path:
+    """Write ``WORKDIR/up.json`` (through a temporary file and a rename): the domain of a
+    ``reachset up`` run, its process id and the nodes it started (``[{name, pid, log}]``),
+    so that the operator commands (``reachset status --workdir DIR``) find the suite."""
+    import json
+    import tempfile
+    path = Path(workdir) / STATE_FILE
+    doc = {"ros_domain_id": int(domain_id), "pid": int(pid), "workdir": str(workdir), "nodes": list(nodes)}
+    fd, tmp = tempfile.mkstemp(prefix=STATE_FILE + ".", suffix=".partial", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        json.dump(doc, f, sort_keys=True)
+    os.replace(tmp, path)
+    return path
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def suite_domain(*, domain=None, workdir=None, environ=None) -> tuple[int, str, dict]:
+    """The ``ROS_DOMAIN_ID`` of a running suite, for the operator commands.
+
+    In this order: ``domain`` (``--domain``); ``WORKDIR/up.json`` of a ``reachset up`` that
+    is still running (``--workdir``); ``ROS_DOMAIN_ID`` of ``environ``; else 0, ROS 2's default.
+
+    Returns
+    -------
+    domain_id : int
+    source : str
+        Where it came from, for the output (``--domain``, the file, ``ROS_DOMAIN_ID``, ``default``).
+    state : dict
+        The ``up.json`` document (empty without ``workdir``).
+
+    Raises
+    ------
+    ReachsetError
+        A domain id outside ``0..MAX_DOMAIN_ID``; a ``workdir`` without ``up.json`` (not a
+        working directory of ``reachset up``), with an unreadable one, or whose ``reachset up``
+        is no longer running; a ``ROS_DOMAIN_ID`` that is not a number.
+    """
+    import json
+    environ = os.environ if environ is None else environ
+
+    def checked(value, what):
+        try:
+            d = int(str(value).strip())
+        except ValueError:
+            raise ReachsetError(f"{what} {value!r} is not a domain id (0..{MAX_DOMAIN_ID})") from None
+        if not 0 <= d <= MAX_DOMAIN_ID:
+            raise ReachsetError(f"{what} {d} is outside 0..{MAX_DOMAIN_ID}")
+        return d
+
+    if domain is not None:
+        return checked(domain, "--domain"), "--domain", {}
+    if workdir is not None:
+        path = Path(workdir) / STATE_FILE
+        try:
+            state = json.loads(path.read_text())
+            d = checked(state["ros_domain_id"], f"{path}: ros_domain_id")
+        except FileNotFoundError:
+            raise ReachsetError(f"{path} not found: {workdir} is not the --workdir of a `reachset up` "
+                                "(or of one older than this command)") from None
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ReachsetError(f"{path}: unreadable ({type(e).__name__}: {e})") from None
+        if not _alive(int(state.get("pid", -1))):
+            raise ReachsetError(f"{path}: the `reachset up` of that directory (pid {state.get('pid')}) is not "
+                                "running any more")
+        return d, str(path), state
+    if environ.get("ROS_DOMAIN_ID", "").strip():
+        return checked(environ["ROS_DOMAIN_ID"], "ROS_DOMAIN_ID"), "ROS_DOMAIN_ID", {}
+    return 0, "default", {}

@@ -16,7 +16,7 @@ import json
 import sys
 
 #: Modules under reachset_ros.commands, in the order ``reachset --help`` lists them.
-MODULES = ["selftest", "analyze", "inspect", "identify", "check", "replay", "report", "fit_lwa4p", "import_lwa4p", "synthesize", "input_limits", "simulate", "excite", "demo", "up"]
+MODULES = ["selftest", "analyze", "inspect", "identify", "check", "replay", "report", "fit_lwa4p", "import_lwa4p", "synthesize", "input_limits", "simulate", "excite", "demo", "up", "status", "watch", "reset", "stop", "gains"]
 
 
 def emit(args, result, human=None):

@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..domain import pick_domain_id
+from ..domain import pick_domain_id, write_suite_state
 from ..errors import ReachsetError
 
 NAME = "up"
@@ -39,7 +39,8 @@ def add_arguments(p):
                         "controller, the synthesis node (and the observer, where it takes one)")
     p.add_argument("--sim", action="store_true", help="also start the simulated arm and the reference generator")
     p.add_argument("--workdir", metavar="DIR",
-                   help="where the logs (DIR/NODE.log), parameter files, windows and models go "
+                   help="where the logs (DIR/NODE.log), parameter files, windows and models go, and DIR/up.json "
+                        "(the domain, for `reachset status|watch|reset|stop|gains --workdir DIR`) "
                         "(default: a new temporary directory)")
     p.add_argument("--timeout", type=float, default=60.0, metavar="S",
                    help="seconds each node may take to appear in the ROS graph (default 60)")
@@ -87,6 +88,8 @@ def run(args):
     domain = pick_domain_id()
     print(f"ROS_DOMAIN_ID={domain}", flush=True)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    # WORKDIR/up.json: where the operator commands (`reachset status --workdir DIR`) find the suite
+    write_suite_state(workdir, domain_id=domain, pid=os.getpid())
     # progress on stdout, or on stderr when stdout carries the JSON object
     out = sys.stderr if args.json else sys.stdout
 
@@ -94,6 +97,8 @@ def run(args):
         print(f"reachset up: {line}", file=out, flush=True)
 
     def ready(procs):
+        write_suite_state(workdir, domain_id=domain, pid=os.getpid(),
+                          nodes=[{"name": p.name, "pid": p.proc.pid, "log": str(p.log)} for p in procs])
         if args.json:
             print(json.dumps({"ros_domain_id": domain, "workdir": str(workdir),
                               "nodes": [{"name": p.name, "pid": p.proc.pid, "log": str(p.log),
@@ -101,7 +106,7 @@ def run(args):
                                                          else None)}
                                         for p in procs]}, sort_keys=True), flush=True)
         log(f"all {len(procs)} nodes up in ROS_DOMAIN_ID={domain}; `export ROS_DOMAIN_ID={domain}` to reach "
-            f"them; Ctrl-C or SIGTERM stops them")
+            f"them (or `reachset status --workdir {workdir}`); Ctrl-C or SIGTERM stops them")
         if bringup.unmonitored(nodes):
             log(UNMONITORED)
 

@@ -10,7 +10,9 @@ joint's ``/reference`` moves: ``invalid_sample``), it publishes a latched
 ``/safe_stop`` (reliable, transient local) and writes the offending window (the last
 k* + history ticks) to a bag. Only a reset clears the stop: ``~/reset`` (std_srvs/Trigger)
 or ``~/reset_stop`` (reachset_msgs/ResetStop, naming the caller and the reason); refused
-while the stop's condition persists, logged either way (``PRIVILEGED``). The model (sets,
+while the stop's condition persists, logged either way (``PRIVILEGED``). An operator latches
+a stop of kind ``manual`` through ``~/stop`` (reachset_msgs/ResetStop as the request: caller and
+reason; ``reachset stop``), logged the same way and cleared only by that reset. The model (sets,
 horizon, estimator) comes from ``model_file`` and can be swapped through the parameter
 service; a refused change leaves the running model as it was.
 Skipped input (repeated or stale stamps, incomplete ticks, gaps) is counted on
@@ -141,6 +143,7 @@ class MonitorNode(Node):
         self.create_subscription(JointReference, "reference", self.on_reference, INPUT_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_service(ResetStop, "~/reset_stop", self.on_reset_stop)
+        self.create_service(ResetStop, "~/stop", self.on_manual_stop)
         self.create_timer(1.0, self.publish_diagnostics)
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
         self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
@@ -444,6 +447,31 @@ class MonitorNode(Node):
         """``~/reset_stop`` (reachset_msgs/ResetStop: the caller and the reason): :meth:`reset_stop`."""
         response.success, response.message = self.reset_stop(request.caller, request.reason, "~/reset_stop")
         return response
+
+    def on_manual_stop(self, request, response):
+        """``~/stop`` (reachset_msgs/ResetStop as the request: the caller and the reason): :meth:`manual_stop`."""
+        response.success, response.message = self.manual_stop(request.caller, request.reason)
+        return response
+
+    def manual_stop(self, caller, reason):
+        """An operator's stop (issue 36.2, ``reachset stop``): latch ``/safe_stop`` with kind
+        ``manual`` and the reason, as a check latches one (the controller's category-1 stop,
+        the offending window written); it replaces the start-up stop, and only the audited
+        reset (:meth:`reset_stop`) clears it. A stop already latched by a check stays as it is
+        (the first cause wins; the arm is stopped already). Every request is a ``PRIVILEGED``
+        log line. Returns ``(success, message)``: success means a stop is latched now."""
+        services = [self.resolve_service_name("~/stop")]
+        why = " ".join((reason or "").split())
+        if self.stop_active and not self.not_ready:
+            message = (f"a safe stop is latched already ({self.stop_msg.kind}: {self.stop_msg.reason}); it stays "
+                       "until the reset")
+        else:
+            stamp = ((self.core.last_stamp if self.core is not None else 0) or self.get_clock().now().nanoseconds)
+            self.trigger(stamp, "manual", "manual stop through ~/stop" + (f" by {caller}" if caller else "")
+                         + (f": {why}" if why else ""))
+            message = "safe stop latched (kind manual); only the reset clears it"
+        log_privileged(self, "manual safe stop through ~/stop", caller, reason, f"granted ({message})", services)
+        return True, message
 
     def reset_stop(self, caller, reason, via):
         """Clear the safe stop, only once its cause has cleared: the monitor keeps checking

@@ -77,10 +77,13 @@ class SuiteCommander(Node):
         Looked at after every spin, where :class:`reachset_ros.processes.Interrupted` ends the
         workflow.
     node_name : str
+    use_sim_time : bool
+        Run on the simulation's ``/clock`` (the demo, the campaign); False for a client of a
+        suite that may run a real arm (:mod:`.operator`).
     """
 
-    def __init__(self, *, workdir, stop=None, node_name=NODE_NAME):
-        super().__init__(node_name, parameter_overrides=[Parameter("use_sim_time", value=True)])
+    def __init__(self, *, workdir, stop=None, node_name=NODE_NAME, use_sim_time=True):
+        super().__init__(node_name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
         self.workdir = Path(workdir)
         self.stop = stop
         self.stops = []          # every /safe_stop message
@@ -358,7 +361,7 @@ class SuiteCommander(Node):
 
 
 @contextmanager
-def open_commander(*, workdir, stop=None, node_name=NODE_NAME):
+def open_commander(*, workdir, stop=None, node_name=NODE_NAME, use_sim_time=True):
     """A :class:`SuiteCommander`, closed on the way out (every process it started stopped).
 
     rclpy is initialised here when it is not yet (with the signals left to the caller, e.g.
@@ -369,7 +372,7 @@ def open_commander(*, workdir, stop=None, node_name=NODE_NAME):
         processes.use_dds_profiles()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
-        commander = SuiteCommander(workdir=workdir, stop=stop, node_name=node_name)
+        commander = SuiteCommander(workdir=workdir, stop=stop, node_name=node_name, use_sim_time=use_sim_time)
         try:
             yield commander
         finally:

@@ -163,3 +163,47 @@ def test_the_controller_holds_the_start_up_stop_with_the_drives_not_the_brakes(b
         assert node.stop.engaged.all()
     finally:
         node.destroy_node()
+
+
+def call_stop(bus, caller, reason, timeout=15.0):
+    """The monitor's ``~/stop`` (reachset_msgs/ResetStop: caller, reason); its response."""
+    import rclpy
+    from reachset_msgs.srv import ResetStop
+    cli = bus.caller.create_client(ResetStop, "/monitor_node/stop")
+    try:
+        assert cli.wait_for_service(timeout_sec=timeout), "/monitor_node/stop not available"
+        fut = cli.call_async(ResetStop.Request(caller=caller, reason=reason))
+        rclpy.spin_until_future_complete(bus.caller, fut, timeout_sec=timeout)
+        assert fut.done(), "/monitor_node/stop did not answer"
+        return fut.result()
+    finally:
+        bus.caller.destroy_client(cli)
+
+
+def test_a_manual_stop_before_the_release_latches_and_only_the_audited_reset_clears_it(bus, tmp_path):
+    """Issue 36.2: ``~/stop`` replaces the start-up stop with a latched stop of kind ``manual``
+    (the reason and the caller in it, a PRIVILEGED line); the clean ticks that would have
+    released the start-up stop do not release it; the audited reset does. Before there was no
+    ``~/stop`` (the call finds no service)."""
+    bus.clear()
+    proc, _ = start_monitor(bus, tmp_path, reset_clean_ticks=0)
+    try:
+        r = call_stop(bus, "test_operator", "cell door open")
+        assert r.success and "latched" in r.message, r.message
+        assert bus.wait(lambda: any(s.active and s.kind == "manual" for s in list(bus.stops)), 20)
+        stop = next(s for s in list(bus.stops) if s.kind == "manual")
+        assert "cell door open" in stop.reason and "test_operator" in stop.reason
+        n = 2 * (HISTORY + HORIZON + 1)
+        Y, U = stream(n, seed=8)
+        bus.send_ticks(stamps(n), Y, U)
+        assert bus.wait(lambda: len(bus.status) >= n - 5, 30), len(bus.status)
+        time.sleep(0.5)
+        assert bus.stops[-1].active and bus.stops[-1].kind == "manual"     # not released by clean ticks
+        assert not any(not s.active for s in list(bus.stops))
+        r = bus.call_trigger("/monitor_node/reset")
+        assert r.success, r.message
+        assert bus.wait(lambda: not bus.stops[-1].active and bus.stops[-1].kind == "reset", 20)
+        log = proc.log.read_text()
+        assert "PRIVILEGED manual safe stop through ~/stop: caller test_operator; reason 'cell door open'" in log
+    finally:
+        processes.stop([proc])
