@@ -19,6 +19,7 @@ from rosbags.rosbag2 import Reader
 
 from ..errors import ReachsetError, first_line
 from .messages import header_stamp_ns, typestore
+from .topics import check_bag
 
 
 def _decoded(reader, conns, ts):
@@ -40,13 +41,16 @@ def read_messages(paths, topics=None):
 
     Messages are decoded one by one with rosbags' ``deserialize_cdr`` and the typestore of
     :mod:`.messages` (every type of the bag layout), so this is for small bags (the demo's
-    status and safe stops, tests); rosbags' exceptions pass unchanged.
+    status and safe stops, tests). A bag that is not one, or whose storage is missing or
+    truncated, raises :class:`ReachsetError` (:func:`~.topics.check_bag`) before any message
+    is yielded; rosbags' exceptions while reading pass unchanged.
     """
     ts = typestore()
     wanted = None if topics is None else set(topics)
     with ExitStack() as stack:
         gens = []
         for p in paths:
+            check_bag(p)
             reader = stack.enter_context(Reader(Path(p)))
             conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
             if conns:
@@ -64,6 +68,7 @@ def read_topic_rows(paths, topic, fields, joints=None):
     cols, found = {}, False
     for p in paths:
         path = Path(p)
+        check_bag(path)
         try:
             with Reader(path) as reader:
                 conns = [c for c in reader.connections if c.topic == topic]
