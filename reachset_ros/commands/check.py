@@ -24,10 +24,15 @@ def add_arguments(p):
                                                   "(envelope over all test cases) against R_a[k]")
 
 
-def joint_result(first_violation_ns, res):
-    """The JSON of one joint's :class:`~reachset_ros.conformance.CheckResult`."""
+def joint_result(first_violation_ns, res, report=None):
+    """The JSON of one joint's :class:`~reachset_ros.conformance.CheckResult`; with the read
+    ``report``, ``first_violation_s``: seconds from the start of the bag holding the violation."""
+    first_s = None
+    if first_violation_ns is not None and report is not None:
+        first_s = report.seconds_from_start(int(first_violation_ns))
     return {"violations": res.violations,
             "first_violation_ns": None if first_violation_ns is None else int(first_violation_ns),
+            "first_violation_s": first_s,
             "test_cases": res.test_cases, "checks": res.checks,
             "worst_margin": res.worst_margin if res.checks else None}
 
@@ -49,7 +54,11 @@ def _fleet(args, model, thm, fleet):
         checked, report = fl.check(fleet, args.bags, read, sweep, xis)
         if args.plot:             # a second pass: the envelopes of the deviations
             devs = {n: d for n, d in fl.extremes(fleet, args.bags, read, sweep).devs.items() if n in xis}
-    return {n: joint_result(first, res) for n, (res, first) in checked.items()}, report, devs
+    return {n: joint_result(first, res, report) for n, (res, first) in checked.items()}, report, devs
+
+
+def _seconds(s):
+    return "" if s is None else f"{s:.3f} s from the bag's start, stamp "
 
 
 def run(args):
@@ -71,7 +80,7 @@ def run(args):
             xi = model.checked_xi(name)
             res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
             joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
-                                        res)
+                                        res, report)
         devs = None
         if args.plot:
             devs = {name: deviation_extremes(model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)
@@ -82,6 +91,7 @@ def run(args):
         result["plots"] = [plot_deviations(args.plot, name, model, thm, d) for name, d in devs.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
-        + (f", first at {j['first_violation_ns']} ns" if j["first_violation_ns"] is not None else "")
+        + (f", first at {_seconds(j['first_violation_s'])}{j['first_violation_ns']} ns"
+           if j["first_violation_ns"] is not None else "")
         for n, j in joints.items()))
     return 0 if result["conformant"] else 1
