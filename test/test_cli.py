@@ -7,7 +7,7 @@ import pytest
 
 
 @pytest.mark.parametrize("args, status", [(["analyze"], 0), (["analyze", "--json"], 0),
-                                          (["analyze", "--omega", "-1"], 2)])
+                                          (["analyze", "--omega", "-1"], 2), (["analyze", "--omega", "1000"], 1)])
 def test_a_closed_pipe_keeps_the_commands_exit_status(args, status):
     """``reachset analyze | true``: the reader is gone before the command writes. HEAD ended with a
     BrokenPipeError traceback and exit status 1 whatever the command's verdict."""
