@@ -58,16 +58,40 @@ class _ClosedPipeSafe:
         return getattr(self._stream, name)
 
 
+def _shown(value):
+    """A default as ``--help`` shows it: ``none`` for None or an empty list, lists space-separated."""
+    if value is None or (isinstance(value, (list, tuple)) and not value):
+        return "none"
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(str, value))
+    return str(value)
+
+
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """``--help`` shows every option's default (argparse's ArgumentDefaultsHelpFormatter, but
+    ``none`` for an unset option, ``required`` for a required one, and unchanged when the help
+    text already says its default); flags (``--json``) and positionals are as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or action.nargs == 0 or action.default is argparse.SUPPRESS
+                or "default" in text.lower()):
+            return text
+        if action.required:
+            return text + " (required)"
+        return text + f" (default: {_shown(action.default)})".replace("%", "%%")
+
+
 def build_parser():
     parser = _OneLineParser(
-        prog="reachset",
+        prog="reachset", formatter_class=_DefaultsFormatter,
         description="Reachset-conformant identification, controller synthesis and conformance "
                     "checking for feedback-linearized robots (Liu, Schuermann, Althoff, IEEE T-RO).")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_OneLineParser)
     for modname in MODULES:
         mod = importlib.import_module(f".commands.{modname}", __package__)
-        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP, formatter_class=_DefaultsFormatter)
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show full tracebacks")
         mod.add_arguments(sp)

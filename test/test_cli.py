@@ -98,3 +98,37 @@ def test_seconds_from_start_counts_from_the_bag_holding_the_stamp():
     assert rep.seconds_from_start(5_500_000_000) == 0.5
     assert rep.seconds_from_start(1_250_000_000) == 0.25
     assert rep.seconds_from_start(500_000_000) is None and ReadReport().seconds_from_start(1) is None
+
+
+def _subparsers():
+    import argparse
+
+    from reachset_ros.cli import build_parser
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return parser, sub.choices
+
+
+def test_help_shows_every_options_default():
+    """``reachset CMD --help`` of every subcommand: each option that takes a value shows its
+    default (or says it is required); many showed nothing (``--estimator``, ``--dt``, ``--seed``)."""
+    import argparse
+    parser, commands = _subparsers()
+    assert len(commands) >= 14
+    missing, shown = [], 0
+    for name, sp in commands.items():
+        formatter = sp._get_formatter()
+        for a in sp._actions:
+            if not a.option_strings or a.nargs == 0 or a.default is argparse.SUPPRESS:
+                continue
+            text = formatter._expand_help(a) if a.help else ""
+            if not ("default" in text.lower() or "(required)" in text):
+                missing.append(f"{name} {a.option_strings[-1]}: {text!r}")
+            elif isinstance(a.default, (int, float, str)) and "(default: " in text:
+                shown += 1
+                assert f"(default: {a.default})" in text, (name, a.option_strings, text)
+    assert not missing, "\n".join(missing)
+    assert shown > 10
+    p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", "--help"], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0 and "(default: fd)" in p.stdout and "(default: 0.004)" in p.stdout, p.stdout
