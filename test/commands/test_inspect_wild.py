@@ -57,6 +57,9 @@ def test_inspect_names_a_malformed_topic_and_reads_the_rest(tmp_path):
     assert len(cols[bags.JOINT_STATES].stamps["a"]) == 300
     with pytest.raises(ReachsetError, match="/leader/joint_states"):
         bags.read_topics([bag], ["/leader/joint_states"])
+    assert sum(1 for _ in bags.read_messages([bare], [bags.JOINT_STATES, bags.PLANT_INPUT])) == 600
+    with pytest.raises(ReachsetError, match="malformed message on /leader/joint_states"):
+        list(bags.read_messages([bag]))
 
 
 def test_the_gap_between_two_bags_is_not_jitter(tmp_path):
