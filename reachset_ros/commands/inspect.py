@@ -24,6 +24,8 @@ from . import emit
 NAME = "inspect"
 HELP = "what a bag holds (topics, rates, joints, sampling period) and the identify command for it"
 
+#: the kind of the monitor's start-up stop (held until its model is loaded): not warned about
+NOT_READY = "not_ready"
 #: the arrays of each type whose filling is reported
 FIELDS = {JOINT_STATE_TYPE: ("position", "velocity", "effort"), PLANT_INPUT_TYPE: ("acceleration",)}
 
@@ -76,10 +78,10 @@ def _entry(topics, c, path):
     return e
 
 
-def _add(e, msgtype, msg, events, topic, t):
+def _add(e, msg, *, msgtype, topic, t, events):
     """Count one decoded message: its stamp, names, filled arrays, or the event it reports."""
     if msgtype == SAFE_STOP_TYPE:
-        if msg.active:
+        if msg.active and msg.kind != NOT_READY:   # the monitor's start-up hold is no fault
             events["stops"].append(f"{topic} at log time {t} ns ({msg.kind}: {msg.reason})")
         return
     if topic == FAULT_ONSET_TOPIC and msgtype == FAULT_ONSET_TYPE:
@@ -110,7 +112,7 @@ def _read_bag(path, ts, topics, events):
                 e["bad"] += 1
                 e["why"] = e["why"] or f"{why} (first at log time {t} ns in {path})"
                 continue
-            _add(e, conn.msgtype, msg, events, conn.topic, t)
+            _add(e, msg, msgtype=conn.msgtype, topic=conn.topic, t=t, events=events)
 
 
 def inspect_bags(paths, events=None):

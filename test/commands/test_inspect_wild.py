@@ -77,15 +77,22 @@ def test_the_gap_between_two_bags_is_not_jitter(tmp_path):
             assert abs(stats["rate_hz"] - 250.0) < 1e-6, stats
 
 
+def _safe_stop(t, kind, reason):
+    return bags.typestore().types[bags.SAFE_STOP_TYPE](
+        header=bags.header(t), active=True, reason=reason, kind=kind, joint="a", step=3, test_case_start_ns=t,
+        deviation=0.1, bound=0.01, window_bag="")
+
+
 def _stop_and_fault(w, i, t):
-    ts = bags.typestore()
     if i == 100:
         w.write(bags.FAULT_ONSET_TOPIC, bags.header(t), t, bags.FAULT_ONSET_TYPE)
     if i == 120:
-        stop = ts.types[bags.SAFE_STOP_TYPE](
-            header=bags.header(t), active=True, reason="a left its reachable set", kind="violation", joint="a",
-            step=3, test_case_start_ns=t, deviation=0.1, bound=0.01, window_bag="")
-        w.write(bags.SAFE_STOP_TOPIC, stop, t, bags.SAFE_STOP_TYPE)
+        w.write(bags.SAFE_STOP_TOPIC, _safe_stop(t, "violation", "a left its reachable set"), t, bags.SAFE_STOP_TYPE)
+
+
+def _start_up_hold(w, i, t):
+    if i == 0:      # the monitor's stop until its model is loaded: the start of every monitored run
+        w.write(bags.SAFE_STOP_TOPIC, _safe_stop(t, "not_ready", "monitor not ready"), t, bags.SAFE_STOP_TYPE)
 
 
 def test_a_stop_or_a_fault_is_flagged_before_identify_is_suggested(tmp_path):
@@ -104,6 +111,8 @@ def test_a_stop_or_a_fault_is_flagged_before_identify_is_suggested(tmp_path):
     assert len(d["warnings"]) == 2 and d["identify"]["warnings"] == d["warnings"] and d["identify"]["command"]
     clean = json.loads(run("inspect", good_bag(tmp_path / "clean"), "--json").stdout)   # control
     assert clean["warnings"] == [] and clean["malformed_topics"] == {}
+    held = json.loads(run("inspect", good_bag(tmp_path / "held", extra=_start_up_hold), "--json").stdout)
+    assert held["warnings"] == [] and held["topics"][bags.SAFE_STOP_TOPIC]["count"] == 1
 
 
 def test_a_truncated_mcap_is_worded_the_same_by_every_reader(tmp_path):
