@@ -4,7 +4,8 @@ Subcommands live in :mod:`reachset_ros.commands`, one module each. Errors in the
 input raise :class:`reachset_ros.errors.ReachsetError`; ``main`` prints them as one line
 and exits with status 2 (a traceback only with ``--debug``). A reader that closes the pipe
 early (``reachset check ... | head -1``) does not change the exit status: output written after
-that is dropped (:class:`_ClosedPipeSafe`) and the command's own status is returned.
+that is dropped (:class:`_ClosedPipeSafe`, on stdout and stderr) and the command's own status is
+returned.
 """
 import argparse
 import importlib
@@ -102,9 +103,10 @@ def build_parser():
 
 
 def main(argv=None):
-    stdout = sys.stdout
-    if not isinstance(stdout, _ClosedPipeSafe) and hasattr(stdout, "fileno"):
-        sys.stdout = _ClosedPipeSafe(stdout)
+    streams = sys.stdout, sys.stderr
+    # both: ``reachset ... 2>&1 | true`` closes the pipe stderr writes to as well
+    sys.stdout, sys.stderr = (_ClosedPipeSafe(s) if not isinstance(s, _ClosedPipeSafe) and hasattr(s, "fileno")
+                              else s for s in streams)
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -113,7 +115,7 @@ def main(argv=None):
             return 2
         return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
     finally:
-        sys.stdout = stdout
+        sys.stdout, sys.stderr = streams
 
 if __name__ == "__main__":
     sys.exit(main())

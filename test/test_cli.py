@@ -16,10 +16,14 @@ def test_a_closed_pipe_keeps_the_commands_exit_status(args, status):
     try:
         p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", *args], stdout=write,
                            stderr=subprocess.PIPE, text=True, timeout=300)
+        # ``2>&1 | true``: stderr (the error line, the reason of an unstable loop) into the closed pipe too
+        both = subprocess.run([sys.executable, "-m", "reachset_ros.cli", *args], stdout=write, stderr=write,
+                              timeout=300)
     finally:
         os.close(write)
     assert p.returncode == status, p.stderr
     assert "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr
+    assert both.returncode == status
 
 
 @pytest.fixture(scope="module")
