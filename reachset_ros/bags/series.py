@@ -77,12 +77,13 @@ class ReadReport:
     def seconds_from_start(self, stamp_ns):
         """Seconds of ``stamp_ns`` from the start of the bag that holds it: the latest bag start
         at or before it (bags need not be given in time order), or None."""
+        if stamp_ns is None:
+            return None
         starts = [s for s in (self.start_ns or ()) if s is not None and s <= stamp_ns]
-        return None if stamp_ns is None or not starts else (int(stamp_ns) - max(starts)) * 1e-9
+        return (int(stamp_ns) - max(starts)) * 1e-9 if starts else None
 
     def as_dict(self):
         return {k: v for k, v in self.__dict__.items()}
-
 
 
 def _unique_sorted(stamps, values):
