@@ -4,7 +4,8 @@ Subcommands live in :mod:`reachset_ros.commands`, one module each. Errors in the
 input raise :class:`reachset_ros.errors.ReachsetError`; ``main`` prints them as one line
 and exits with status 2 (a traceback only with ``--debug``). A reader that closes the pipe
 early (``reachset check ... | head -1``) does not change the exit status: output written after
-that is dropped (:class:`_ClosedPipeSafe`) and the command's own status is returned.
+that is dropped (:class:`_ClosedPipeSafe`, on stdout and stderr) and the command's own status is
+returned.
 """
 import argparse
 import importlib
@@ -58,16 +59,40 @@ class _ClosedPipeSafe:
         return getattr(self._stream, name)
 
 
+def _shown(value):
+    """A default as ``--help`` shows it: ``none`` for None or an empty list, lists space-separated."""
+    if value is None or (isinstance(value, (list, tuple)) and not value):
+        return "none"
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(str, value))
+    return str(value)
+
+
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """``--help`` shows every option's default (argparse's ArgumentDefaultsHelpFormatter, but
+    ``none`` for an unset option, ``required`` for a required one, and unchanged when the help
+    text already says its default); flags (``--json``) and positionals are as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or action.nargs == 0 or action.default is argparse.SUPPRESS
+                or "default" in text.lower()):
+            return text
+        if action.required:
+            return text + " (required)"
+        return text + f" (default: {_shown(action.default)})".replace("%", "%%")
+
+
 def build_parser():
     parser = _OneLineParser(
-        prog="reachset",
+        prog="reachset", formatter_class=_DefaultsFormatter,
         description="Reachset-conformant identification, controller synthesis and conformance "
                     "checking for feedback-linearized robots (Liu, Schuermann, Althoff, IEEE T-RO).")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_OneLineParser)
     for modname in MODULES:
         mod = importlib.import_module(f".commands.{modname}", __package__)
-        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP, formatter_class=_DefaultsFormatter)
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show full tracebacks")
         mod.add_arguments(sp)
@@ -78,9 +103,10 @@ def build_parser():
 
 
 def main(argv=None):
-    stdout = sys.stdout
-    if not isinstance(stdout, _ClosedPipeSafe) and hasattr(stdout, "fileno"):
-        sys.stdout = _ClosedPipeSafe(stdout)
+    streams = sys.stdout, sys.stderr
+    # both: ``reachset ... 2>&1 | true`` closes the pipe stderr writes to as well
+    sys.stdout, sys.stderr = (_ClosedPipeSafe(s) if not isinstance(s, _ClosedPipeSafe) and hasattr(s, "fileno")
+                              else s for s in streams)
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -89,7 +115,7 @@ def main(argv=None):
             return 2
         return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
     finally:
-        sys.stdout = stdout
+        sys.stdout, sys.stderr = streams
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -61,3 +61,93 @@ def test_references_follow_the_last_file_on_the_line():
     refs = list(references("`test/a/test_x.py::test_one`, `::test_two`; `test/b.py`"))
     assert refs == [(1, "test/a/test_x.py", "test_one"), (1, "test/a/test_x.py", "test_two"),
                     (1, "test/b.py", None)]
+
+
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading: lower case, punctuation dropped, spaces to '-'."""
+    text = re.sub(r"[`*_]|<[^>]+>", "", heading.strip().lower())
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    out = set()
+    fenced = False
+    for line in path.read_text().splitlines():
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        elif not fenced and line.startswith("#"):
+            base = _slug(line.lstrip("#"))
+            n, slug = 0, base
+            while slug in out:           # repeated headings get -1, -2, ...
+                n += 1
+                slug = f"{base}-{n}"
+            out.add(slug)
+    return out
+
+
+def relative_links(text: str):
+    """``(line number, target)`` of each relative link (no scheme, not mailto) outside code fences."""
+    fenced = False
+    for n, line in enumerate(text.splitlines(), 1):
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+            continue
+        if fenced:
+            continue
+        for m in LINK.finditer(line):
+            target = m.group(1)
+            if not re.match(r"[a-z][a-z0-9+.-]*:", target, re.I):
+                yield n, target
+
+
+def test_every_relative_link_in_the_docs_resolves_in_a_clone():
+    """A link in README.md or docs/*.md to a file of the repository (and to a heading of a
+    Markdown file) points at something that exists in a clone: the old README linked files
+    that are not in the repository."""
+    docs = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+    broken, seen = [], 0
+    for doc in docs:
+        for n, target in relative_links(doc.read_text()):
+            seen += 1
+            path_part, _, anchor = target.partition("#")
+            path = (doc.parent / path_part).resolve() if path_part else doc
+            if not path.exists():
+                broken.append(f"{doc.name}:{n}: {target}: no such file")
+            elif REPO not in path.parents and path != REPO:
+                broken.append(f"{doc.name}:{n}: {target}: outside the repository")
+            elif anchor and path.suffix == ".md" and anchor not in _anchors(path):
+                broken.append(f"{doc.name}:{n}: {target}: no heading #{anchor} in {path.name}")
+    assert seen > 5          # the docs do link files (the pattern still matches them)
+    assert not broken, "\n".join(broken)
+
+
+#: files named in the docs that are not in a clone on purpose: the campaign history's old module name
+NOT_IN_A_CLONE = {"reachset_ros/nodes/campaign_driver.py"}
+
+
+def test_every_file_path_named_in_the_docs_is_in_a_clone():
+    """README.md and docs/*.md name files as `dir/file.ext` (a top-level directory of the
+    repository) and must not name files outside the repository (``/work/...``): a reader of a
+    clone cannot open them. docs/performance.md named a note of the development machine."""
+    tops = [p.name for p in REPO.iterdir() if p.is_dir() and not p.name.startswith(".")]
+    named = re.compile(r"`((?:%s)/[\w./-]*\.\w+)(?:::\w+)*`" % "|".join(map(re.escape, tops)))
+    missing, seen = [], 0
+    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        for n, line in enumerate(doc.read_text().splitlines(), 1):
+            for m in named.finditer(line):
+                seen += 1
+                if m.group(1) not in NOT_IN_A_CLONE and not (REPO / m.group(1)).exists():
+                    missing.append(f"{doc.name}:{n}: {m.group(1)}")
+            missing += [f"{doc.name}:{n}: {m.group(0)} is outside the repository"
+                        for m in re.finditer(r"(?<![\w.])/work/[\w./-]+", line)]
+    assert seen > 20
+    assert not missing, "\n".join(missing)
+
+
+def test_relative_links_and_anchors():
+    text = "[a](docs/x.md#two-words) ![i](img.png) [w](https://x.org) `[c](no.md)`\n```\n[f](fenced.md)\n```"
+    assert list(relative_links(text)) == [(1, "docs/x.md#two-words"), (1, "img.png"), (1, "no.md")]
+    assert _slug("Two `words`, here!") == "two-words-here"

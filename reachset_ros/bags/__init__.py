@@ -23,7 +23,7 @@ series
     (:func:`concat_series`, :func:`merge_reports`).
 topics
     Streamed reading of topics into per-joint columns (:func:`read_topics`,
-    :func:`read_fields`) and what a bag path may be (:func:`check_bag_path`).
+    :func:`read_fields`) and what a bag path may be (:func:`check_bag_path`, :func:`check_bag`).
 decoded
     Messages decoded one by one: :func:`read_messages` (small bags), :func:`read_topic_rows`.
 cdr
@@ -78,7 +78,8 @@ from .series import (
     read_joint_series,
     segments_of,
 )
-from .topics import VALUE_FIELDS, check_bag_path, read_fields, read_topics
+from .mcap import TRUNCATED_MCAP
+from .topics import VALUE_FIELDS, check_bag, check_bag_path, read_fields, read_topics
 from .writer import BagWriter
 
 __all__ = [
@@ -94,7 +95,7 @@ __all__ = [
     # reading
     "JointSeries", "ReadReport", "read_joint_series", "read_topics", "read_fields", "read_topic_rows",
     "read_messages", "segments_of", "measured_period", "check_period", "PERIOD_TOLERANCE",
-    "merge_reports", "concat_series", "check_bag_path", "VALUE_FIELDS",
+    "merge_reports", "concat_series", "check_bag_path", "check_bag", "TRUNCATED_MCAP", "VALUE_FIELDS",
     "Reference", "read_references", "read_estimates",
     # fast decoding
     "FAST_TYPES", "CdrError", "cdr_layout", "decode_rows", "decode_payloads",

@@ -19,13 +19,20 @@ from rosbags.rosbag2 import Reader
 
 from ..errors import ReachsetError, first_line
 from .messages import header_stamp_ns, typestore
+from .topics import check_bag
 
 
-def _decoded(reader, conns, ts):
+def _decoded(reader, conns, ts, path=""):
     """``(topic, log_time_ns, msg)`` of the connections ``conns`` of an open rosbags reader,
-    in the order it yields them, each message decoded with ``ts``."""
+    in the order it yields them, each message decoded with ``ts``. A message that is not valid
+    CDR for its type raises :class:`ReachsetError` naming the bag, the topic and the log time."""
     for conn, t, raw in reader.messages(connections=conns):
-        yield conn.topic, t, ts.deserialize_cdr(raw, conn.msgtype)
+        try:
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+        except Exception as e:  # noqa: BLE001 (rosbags raises SerdeError, struct.error, ...)
+            raise ReachsetError(f"{path}: malformed message on {conn.topic} at log time {t} ns "
+                                f"(not valid CDR for {conn.msgtype}: {type(e).__name__}: {first_line(e)})") from None
+        yield conn.topic, t, msg
 
 
 def read_messages(paths, topics=None):
@@ -40,17 +47,22 @@ def read_messages(paths, topics=None):
 
     Messages are decoded one by one with rosbags' ``deserialize_cdr`` and the typestore of
     :mod:`.messages` (every type of the bag layout), so this is for small bags (the demo's
-    status and safe stops, tests); rosbags' exceptions pass unchanged.
+    status and safe stops, tests). A bag that is not one, or whose storage is missing or
+    truncated, raises :class:`ReachsetError` (:func:`~.topics.check_bag`) before any message
+    is yielded, and so does a message of the topics read that is not valid CDR for its type
+    (naming the topic; the other topics of the bag can still be read); other rosbags exceptions
+    while reading pass unchanged.
     """
     ts = typestore()
     wanted = None if topics is None else set(topics)
     with ExitStack() as stack:
         gens = []
         for p in paths:
+            check_bag(p)
             reader = stack.enter_context(Reader(Path(p)))
             conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
             if conns:
-                gens.append(_decoded(reader, conns, ts))
+                gens.append(_decoded(reader, conns, ts, p))
         yield from merge(*gens, key=lambda m: m[1])
 
 
@@ -64,13 +76,14 @@ def read_topic_rows(paths, topic, fields, joints=None):
     cols, found = {}, False
     for p in paths:
         path = Path(p)
+        check_bag(path)
         try:
             with Reader(path) as reader:
                 conns = [c for c in reader.connections if c.topic == topic]
                 if not conns:
                     continue
                 found = True
-                for _topic, _t, msg in _decoded(reader, conns, ts):
+                for _topic, _t, msg in _decoded(reader, conns, ts, path):
                     st = header_stamp_ns(msg)
                     arrs = [np.asarray(getattr(msg, f), float) for f in fields]
                     for i, nm in enumerate(msg.name):

@@ -249,6 +249,16 @@ def _storage_files(path):
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
+#: The one wording of a truncated MCAP storage file (no end magic), whichever reader meets it
+#: (``reachset inspect``, identify/check's reader, the decoded messages of the demo and plots).
+TRUNCATED_MCAP = "truncated MCAP file, no end magic; `mcap recover` may rescue its messages"
+
+
+def truncated_mcap(path, fname):
+    """The error of a truncated MCAP storage file ``fname`` of the bag ``path``
+    (:data:`TRUNCATED_MCAP`)."""
+    return ReachsetError(f"{path}: unreadable bag ({fname}: {TRUNCATED_MCAP})")
+
 
 def _preflight(path):
     """Check ``metadata.yaml`` and name a missing, truncated or foreign MCAP storage file
@@ -270,6 +280,5 @@ def _preflight(path):
         if head != _MCAP_MAGIC:
             raise ReachsetError(f"{path}: unreadable bag ({fpath.name}: not an MCAP file)")
         if size < 16 or tail != _MCAP_MAGIC:
-            raise ReachsetError(f"{path}: unreadable bag ({fpath.name}: truncated MCAP file, no end magic; "
-                                "`mcap recover` may rescue its messages)")
+            raise truncated_mcap(path, fpath.name)
     return files

@@ -70,6 +70,17 @@ class ReadReport:
     period_s: object = None
     #: where u_p came from: "topic", or the effort source's description
     input: object = "topic"
+    #: the first paired stamp [ns] of each bag, in order (None for a bag without one): stamps
+    #: are shown as seconds from their bag's start beside the ns (:meth:`seconds_from_start`)
+    start_ns: object = None
+
+    def seconds_from_start(self, stamp_ns):
+        """Seconds of ``stamp_ns`` from the start of the bag that holds it: the latest bag start
+        at or before it (bags need not be given in time order), or None."""
+        if stamp_ns is None:
+            return None
+        starts = [s for s in (self.start_ns or ()) if s is not None and s <= stamp_ns]
+        return (int(stamp_ns) - max(starts)) * 1e-9 if starts else None
 
     def as_dict(self):
         return {k: v for k, v in self.__dict__.items()}
@@ -185,8 +196,10 @@ def read_joint_series(paths, joints=None, dt=0.004, topics=(JOINT_STATES, PLANT_
         parts = [_read_one_effort(p, joints, dt, topics[0], effort, joint_names) for p in paths]
     else:
         parts = [_read_one(p, joints, dt, tuple(topics), joint_names) for p in paths]
-    for _, r in parts:
+    for ser, r in parts:
         r.period_s = [r.period_s]
+        firsts = [int(x.stamps[0]) for x in ser.values() if len(x.stamps)]
+        r.start_ns = [min(firsts) if firsts else None]
     if len(parts) == 1:
         return parts[0]
     names = list(parts[0][0])
@@ -206,6 +219,7 @@ def merge_reports(reports):
     rep = ReadReport()
     rep.input = reports[0].input
     rep.period_s = [v for r in reports for v in r.period_s]
+    rep.start_ns = [v for r in reports for v in (r.start_ns or [None])]
     for r in reports:
         for key in ("messages", "duplicates", "out_of_order", "unpaired", "invalid_samples", "gaps",
                     "name_list_changes"):

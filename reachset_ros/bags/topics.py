@@ -7,7 +7,8 @@
   the order rosbags yields them and only compact arrays are kept.
 * :func:`read_fields`: several float arrays of several topics in one pass (the engine of
   :func:`read_topics`).
-* :func:`check_bag_path`: what a bag path may be (a rosbag2 directory or a bare storage file).
+* :func:`check_bag_path`: what a bag path may be (a rosbag2 directory or a bare storage file);
+  :func:`check_bag`: that and its storage files checked before rosbags opens them.
 
 The pairing of these columns into per-joint series is :mod:`.series`. Unreadable bags raise
 :class:`~reachset_ros.errors.ReachsetError` naming the bag (and the damaged file, or the topic).
@@ -78,6 +79,16 @@ def check_bag_path(path: Path):
         raise ReachsetError(f"{path}: not a rosbag2 bag (a directory with metadata.yaml, or a .mcap or .db3 file)")
     if not (path / "metadata.yaml").is_file():
         raise ReachsetError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+
+
+def check_bag(path) -> list:
+    """:func:`check_bag_path`, then the bag's storage files checked before rosbags opens them:
+    ``metadata.yaml`` and a missing, foreign or truncated MCAP file are named in one
+    :class:`ReachsetError` (a truncated MCAP in the one wording :data:`~.mcap.TRUNCATED_MCAP`,
+    whichever reader meets it). Returns the storage files."""
+    path = Path(path)
+    check_bag_path(path)
+    return _preflight(path)
 
 
 #: the value array read from each message type: the joints' positions (y_p) of a JointState,

@@ -13,12 +13,14 @@ Defaults are the paper's axis-1 values of the experiment that uses the chosen ob
   alpha_W = [0.0234, 3.587], alpha_V = 3.49e-5.
 
 ``--u-ff`` is the half-width of U_ff (paper: |qdd_d| <= 2 rad/s^2). An unstable loop is not
-an error: ``stable`` is false and the set keys are null.
+bad input but has no reachable sets: the result is printed (``stable`` false, the set keys
+null), a one-line reason goes to stderr and the exit status is 1.
 """
 import math
+import sys
 
 from .. import defaults
-from ..errors import ReachsetError
+from ..errors import ReachsetError, first_line
 from ..systems.closedloop import analyze, close_loop
 from ..systems.controllers import compensated_feedback, static_feedback
 from ..systems.gains import family_controller
@@ -143,3 +145,7 @@ def run(args):
     else:
         human = res.stability.message
     emit(args, out, human)
+    if not res.stable:       # no R_e, no R_u: exit 1, as check does for a non-conformant bag
+        print(f"reachset analyze: {first_line(ValueError(res.stability.message))}", file=sys.stderr)
+        return 1
+    return 0

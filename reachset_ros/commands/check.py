@@ -11,6 +11,7 @@ from ..plots import plot_deviations
 from . import emit
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, fleet_of, load_series, parse_joints, read_spec,
                        reader_options, require_horizon, topics_of)
+from ._progress import bag_count, progress
 
 NAME = "check"
 HELP = "check bags for reachset conformance against a model (batch, vectorised)"
@@ -24,10 +25,15 @@ def add_arguments(p):
                                                   "(envelope over all test cases) against R_a[k]")
 
 
-def joint_result(first_violation_ns, res):
-    """The JSON of one joint's :class:`~reachset_ros.conformance.CheckResult`."""
+def joint_result(first_violation_ns, res, report=None):
+    """The JSON of one joint's :class:`~reachset_ros.conformance.CheckResult`; with the read
+    ``report``, ``first_violation_s``: seconds from the start of the bag holding the violation."""
+    first_s = None
+    if first_violation_ns is not None and report is not None:
+        first_s = report.seconds_from_start(int(first_violation_ns))
     return {"violations": res.violations,
             "first_violation_ns": None if first_violation_ns is None else int(first_violation_ns),
+            "first_violation_s": first_s,
             "test_cases": res.test_cases, "checks": res.checks,
             "worst_margin": res.worst_margin if res.checks else None}
 
@@ -49,7 +55,34 @@ def _fleet(args, model, thm, fleet):
         checked, report = fl.check(fleet, args.bags, read, sweep, xis)
         if args.plot:             # a second pass: the envelopes of the deviations
             devs = {n: d for n, d in fl.extremes(fleet, args.bags, read, sweep).devs.items() if n in xis}
-    return {n: joint_result(first, res) for n, (res, first) in checked.items()}, report, devs
+    return {n: joint_result(first, res, report) for n, (res, first) in checked.items()}, report, devs
+
+
+def _seconds(s):
+    return "" if s is None else f"{s:.3f} s from the bag's start, stamp "
+
+
+def _local(args, model, thm, options, p):
+    """The single-process check: (joints JSON, report, devs or None)."""
+    p.phase(f"reading {bag_count(args.bags)}")
+    series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
+                                 topics=topics_of(args), options=options)
+    require_horizon(series, model.estimator.history, model.horizon, args.bags)
+    joints = {}
+    for i, (name, s) in enumerate(series.items(), 1):
+        if name not in model.joints:
+            raise ReachsetError(f"joint {name} is not in the model {args.model}")
+        p.phase(f"checking {name} ({i} of {len(series)}, {len(s.stamps)} ticks)")
+        xi = model.checked_xi(name)
+        res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
+        joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
+                                    res, report)
+    devs = None
+    if args.plot:
+        p.phase("sweeping the deviations for the plots")
+        devs = {name: deviation_extremes(model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)
+                for name, s in series.items()}
+    return joints, report, devs
 
 
 def run(args):
@@ -58,30 +91,19 @@ def run(args):
     mdl.require_input_source(model, options["effort"], source=args.model)   # u_p as the model's (34.10)
     fleet = fleet_of(args)
     thm = model.theorem1()
-    if fleet is not None:
-        joints, report, devs = _fleet(args, model, thm, fleet)
-    else:
-        series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                     topics=topics_of(args), options=options)
-        require_horizon(series, model.estimator.history, model.horizon, args.bags)
-        joints = {}
-        for name, s in series.items():
-            if name not in model.joints:
-                raise ReachsetError(f"joint {name} is not in the model {args.model}")
-            xi = model.checked_xi(name)
-            res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
-            joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
-                                        res)
-        devs = None
-        if args.plot:
-            devs = {name: deviation_extremes(model.plant, model.estimator, s.y, s.u, s.segments, model.horizon, thm)
-                    for name, s in series.items()}
+    with progress(args) as p:
+        if fleet is not None:
+            p.phase(f"checking {bag_count(args.bags)} on the fleet")
+            joints, report, devs = _fleet(args, model, thm, fleet)
+        else:
+            joints, report, devs = _local(args, model, thm, options, p)
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
               "data": report.as_dict()}
     if args.plot:
         result["plots"] = [plot_deviations(args.plot, name, model, thm, d) for name, d in devs.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
-        + (f", first at {j['first_violation_ns']} ns" if j["first_violation_ns"] is not None else "")
+        + (f", first at {_seconds(j['first_violation_s'])}{j['first_violation_ns']} ns"
+           if j["first_violation_ns"] is not None else "")
         for n, j in joints.items()))
     return 0 if result["conformant"] else 1

@@ -58,7 +58,7 @@ def add_arguments(p):
     p.add_argument("--rest", type=float, default=d["rest"], metavar="S",
                    help=f"seconds at rest after each move (default {d['rest']:g})")
     p.add_argument("--dt", type=float, default=0.004, help="sampling period, s (default 0.004)")
-    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="rosbag2 storage plugin of the bag")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -45,6 +45,7 @@ from ..workflows.identify import DEFAULT_GRID, IdentifyOptions, check_options, i
 from . import emit
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
                        reader_options, topics_of)
+from ._progress import bag_count, progress
 
 NAME = "identify"
 HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
@@ -133,7 +134,9 @@ def run(args):
                                     (args.calibrate is not None, "--calibrate")))
     opts = replace(opts, out=out, reader=reader_options(args))
     read = None if fleet is None else read_spec(args, args.joints, args.dt)
-    res = identify(opts, fleet=fleet, fleet_read=read)
+    with progress(args) as p:
+        p.phase(f"reading {bag_count(args.bags)} and identifying the sets")
+        res = identify(opts, fleet=fleet, fleet_read=read)
     for line in warning_lines(res.coverage or {}):
         print(f"reachset identify: {line}", file=sys.stderr)
     emit(args, res.to_json(), res.human())

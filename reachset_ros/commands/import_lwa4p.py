@@ -22,7 +22,7 @@ def add_arguments(p):
     p.add_argument("--model", default=None, metavar="MODEL.yaml",
                    help="nominal model (default: the shipped config/lwa4p_nominal.yaml)")
     p.add_argument("--gap", type=float, default=1.0, help="pause between runs in the stamps [s]")
-    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="rosbag2 storage plugin of the bag")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -42,7 +42,7 @@ def add_arguments(p):
     p.add_argument("--check", type=float, nargs="+", metavar="A",
                    help="verify U_p = [-A, A] (one value or one per joint) instead of maximising")
     p.add_argument("--samples", type=int, default=20000, help="random samples for the inner estimate")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seeds the random samples")
     p.add_argument("--out", help="write {u_max: {joint: a}} (a synthesis config fragment) here")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 

@@ -17,6 +17,7 @@ from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
 from ..errors import ReachsetError
 from . import emit
 from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
+from ._progress import bag_count, progress
 
 NAME = "replay"
 HELP = "replay bags through the online monitor core tick by tick (same verdicts as check)"
@@ -92,14 +93,17 @@ def run(args):
     model = mdl.load(args.model)
     options = reader_options(args)
     mdl.require_input_source(model, options["effort"], source=args.model)   # u_p as the model's (34.10)
-    series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
-                                 topics=topics_of(args), options=options)
-    require_horizon(series, model.estimator.history, model.horizon, args.bags)
-    thm = model.theorem1()
-    missing = [n for n in series if n not in model.joints]
-    if missing:
-        raise ReachsetError(f"joint {missing[0]} is not in the model {args.model}")
-    joints, durs, together = replay_joints(model, series, thm)
+    with progress(args) as p:
+        p.phase(f"reading {bag_count(args.bags)}")
+        series, report = load_series(args.bags, args.joints, model.plant.dt, restrict=list(model.joints),
+                                     topics=topics_of(args), options=options)
+        require_horizon(series, model.estimator.history, model.horizon, args.bags)
+        thm = model.theorem1()
+        missing = [n for n in series if n not in model.joints]
+        if missing:
+            raise ReachsetError(f"joint {missing[0]} is not in the model {args.model}")
+        p.phase(f"replaying {len(series)} joint{'' if len(series) == 1 else 's'} tick by tick through the monitor")
+        joints, durs, together = replay_joints(model, series, thm)
     ticks = max(len(s.stamps) for s in series.values())
     d = np.concatenate(durs) * 1e6 if durs else np.zeros(1)
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,

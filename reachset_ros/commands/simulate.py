@@ -59,7 +59,7 @@ def add_arguments(p):
     p.add_argument("--seconds", type=float, required=True, help="duration [s]")
     p.add_argument("--out", required=True, metavar="BAG", help="bag directory to create")
     p.add_argument("--seed", type=int, default=0, help="seeds the reference, the model error and the noise")
-    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="rosbag2 storage plugin of the bag")
     p.add_argument("--plant-input", action="store_true", help="also write /plant_input (the controller's u_p)")
     p.add_argument("--fault", choices=sorted(FAULTS), help="inject a fault of the simulator")
     p.add_argument("--fault-at", type=float, default=None, metavar="S", help="fault start [s] (default: half-way)")

@@ -35,6 +35,7 @@ from ..workflows.synthesize import SynthesisOptions, synthesize
 from . import emit
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
                        reader_options, topics_of)
+from ._progress import bag_count, progress
 
 NAME = "synthesize"
 HELP = "combined controller synthesis and reachset-conformant identification (paper eq. 10)"
@@ -215,8 +216,10 @@ def compute(args, command=None):
         # the reader's effort source is only recorded (the model's input_source), the workers read
         opts, read = options_of(args, joints, free, reader=reader_options(args)), read_spec(args, None, args.dt)
     command = command or "reachset " + " ".join(sys.argv[1:])
-    res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read,
-                     calibrate=args.calibrate)
+    with progress(args) as p:
+        p.phase(f"reading {bag_count(args.bags)} and synthesising the gains")
+        res = synthesize(args.bags, opts, out=out, plot=args.plot, command=command, fleet=fleet, fleet_read=read,
+                         calibrate=args.calibrate)
     result = res.to_json()
     result["seconds"] = round(time.perf_counter() - t0, 3)
     return res, result

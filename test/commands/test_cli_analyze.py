@@ -37,11 +37,16 @@ def test_analyze_eso_and_options_change_the_result():
     assert c["re_norm"] == pytest.approx(2 * d["re_norm"], rel=1e-9)  # linear in alpha
 
 
-def test_analyze_unstable_is_not_an_error():
+def test_analyze_unstable_exits_1_with_a_one_line_reason():
+    """Issue 36.6: an unstable loop exited 0 (a script could not tell it from a stable one).
+    Now exit 1, the result still printed, one line on stderr saying why."""
     out = _run("--json", "--omega", "1000")
-    assert out.returncode == 0, out.stderr
+    assert out.returncode == 1, out.stderr
     res = json.loads(out.stdout)
     assert res["stable"] is False and res["re_norm"] is None and res["ru"] is None
+    assert out.stderr.count("\n") == 1 and out.stderr.startswith("reachset analyze: closed loop unstable"), out.stderr
+    text = _run("--omega", "1000")
+    assert text.returncode == 1 and "unstable" in text.stdout and "Traceback" not in text.stderr
 
 
 def test_analyze_human_output():
