@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 from reachset_ros import defaults
+from reachset_ros.workflows import demo  # noqa: F401 (registers demo.initial_gains)
 from reachset_ros.sim import simulator as simm
 from reachset_ros.sim.recordings import Recording, simulate_arm_recordings, write_recordings
 from reachset_ros.sim.reference import ReferenceConfig
