@@ -105,12 +105,28 @@ def run(args):
     summary["workdir"] = str(workdir)
     summary["failures"] = story_failures(summary, fault_at is not None and fault_at < args.duration)
     summary["guarantee_failures"] = guarantee_failures(summary)
+    summary.update(demo_report(summary, record, workdir))
     (workdir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     emit(args, summary, human_summary(summary))
     line, status = verdict_line(summary, workdir / "summary.json")
     # the last line: on stdout after the human summary, on stderr beside --json's one object
     print(line, file=sys.stderr if args.json or status else sys.stdout, flush=True)
     return status
+
+
+def demo_report(summary, record, workdir):
+    """The monitored run's report page (``reachset report RECORD --model MONITOR_MODEL``, issue
+    36.4): ``{"report": path}``, or ``{"report_error": why}``; a convenience, never the demo's
+    verdict."""
+    from ..report import write_report
+    if not summary.get("monitor_model"):
+        return {"report_error": "no monitor model"}
+    try:
+        rep = write_report([record], summary["monitor_model"], workdir / "report.html",
+                           command=f"reachset report {record} --model {summary['monitor_model']}")
+        return {"report": rep["report"]}
+    except Exception as e:     # noqa: BLE001 - a page is a convenience; the demo's verdict stands
+        return {"report_error": f"{type(e).__name__}: {e}"}
 
 
 def verdict_line(summary, path):
@@ -313,6 +329,8 @@ def human_summary(s):
                         f"{len(eff['brakes_engaged'])}" if eff.get("brakes_engaged") else ""))
     if s.get("plots"):
         lines.append("plots: " + ", ".join(s["plots"]))
+    if s.get("report"):
+        lines.append(f"report (open in a browser): {s['report']}")
     lines.append(f"recorded: {s['record']}   logs: {s['workdir']}")
     if s.get("bringup"):
         lines.append(f"run this suite again (its model, gains and simulated arm): {s['bringup']['command']}")

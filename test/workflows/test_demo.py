@@ -46,6 +46,9 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     # the last line names the verdict and the summary file (issue 36.6), on stderr beside --json
     last = out.stderr.strip().splitlines()[-1]
     assert last.startswith("reachset demo: PASS") and "summary.json" in last, last
+    # the monitored run's report page (issue 36.4), one self-contained file
+    page = Path(res["report"]).read_text()
+    assert "<section id='joint-arm_1_joint'" in page or 'id="joint-arm_1_joint"' in page, page[:500]
     fault, stop = res["fault_injected_ns"], res["safe_stop_ns"]
     assert fault is not None and stop is not None
     assert res["failures"] == [] and res["early_stop"] is None
