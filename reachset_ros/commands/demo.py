@@ -14,6 +14,7 @@ same way: every node it started is stopped, then it exits with 128 + the signal'
 import argparse
 import json
 import os
+import re
 import sys
 import tempfile
 import time
@@ -178,9 +179,17 @@ def guarantee_failures(s):
         elif not g["inside_share"] >= 1.0:
             out.append(f"{name}: {g['inside_share']:.2%} of {g['ticks']} judged ticks inside R*_e")
     lat = s.get("detection_latency_ms")
-    if lat is not None and lat > DETECTION_WITHIN_MS:
+    if lat is not None and lat > DETECTION_WITHIN_MS and s.get("fault_kind") not in NO_LATENCY_PROMISE:
         out.append(f"fault detected {lat:.1f} ms after its onset (promised: {DETECTION_WITHIN_MS:g} ms)")
     return out
+
+
+#: fault classes the 50 ms promise does not cover, and why (the detection limit of the class)
+NO_LATENCY_PROMISE = {
+    "frozen": ("a frozen reading is the truth while its joint rests and stays within the noise while it creeps: "
+               "it is detectable once the joint's true motion since the onset leaves the reachable sets, not at "
+               "the onset (docs/performance.md, the demo's hidden fault cases)"),
+}
 
 
 def story_failures(s, fault_expected):
@@ -246,7 +255,9 @@ def summarize(res, record, workdir):
         "search_box": res.get("search_box"), "inflation_calibration": res.get("inflation_calibration"),
         "bringup": res.get("bringup"),      # the parameter file and the `reachset up` command (issue 36.1)
     }
-    out["stop_effect"] = stop_effect(record, stop_ns) if stop_ns is not None else None
+    out["fault_kind"], fault_joint = fault_of(res.get("fault"))
+    out["stop_effect"] = (stop_effect(record, stop_ns, fault=(out["fault_kind"], fault_joint))
+                          if stop_ns is not None else None)
     try:
         out["plots"], out["tracking"] = demo_plots(res, record, workdir)
     except Exception as e:  # plots are a convenience; never fail the demo for them
@@ -255,11 +266,22 @@ def summarize(res, record, workdir):
     return out
 
 
-def stop_effect(record, stop_ns):
+def fault_of(description):
+    """``(kind, joint)`` of a ``/sim/fault_onset`` description ("KIND on JOINT, magnitude M"), or
+    ``(None, None)``."""
+    m = re.match(r"^(\w+) on (\S+), magnitude", description or "")
+    return (m.group(1), m.group(2)) if m else (None, None)
+
+
+def stop_effect(record, stop_ns, fault=(None, None)):
     """How the arm came to rest after the safe stop, read from the monitored bag's
     ``/joint_states`` (:func:`reachset_ros.systems.stopping.rest_after_stop`), against what the
     README states for a category-1 stop (:data:`reachset_ros.sim.safe_stop.REST_WITHIN_S`,
-    :data:`~reachset_ros.sim.safe_stop.TRAVEL_WITHIN_RAD`), and the brakes engaged (``/brake_command``)."""
+    :data:`~reachset_ros.sim.safe_stop.TRAVEL_WITHIN_RAD`), and the brakes engaged (``/brake_command``).
+    The joint of a frozen sensor (``fault`` = ``(kind, joint)``) is not judged: its readings
+    cannot show rest (:func:`reachset_ros.sim.campaign.judged_columns`, the campaign's rule);
+    it is named in ``not_judged``."""
+    from ..sim.campaign import judged_columns
     t, q, qd, names, brakes = [], [], [], None, None
     for topic, _, m in read_messages([record], (JOINT_STATES, BRAKE_TOPIC)):
         st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
@@ -273,9 +295,12 @@ def stop_effect(record, stop_ns):
     if not t or max(t) < stop_ns:
         return {"failures": ["no /joint_states after the safe stop in the bag"]}
     order = np.argsort(t, kind="stable")
-    rep = rest_after_stop(names, np.array(t)[order], np.array(q, float)[order], np.array(qd, float)[order], stop_ns)
+    cols = judged_columns(fault[0], fault[1], names)
+    rep = rest_after_stop([names[j] for j in cols], np.array(t)[order], np.array(q, float)[order][:, cols],
+                          np.array(qd, float)[order][:, cols], stop_ns)
     return {"joints": rep.as_dict(), "seconds_after_stop": rep.seconds_after, "rest_within_s": REST_WITHIN_S,
             "travel_within_rad": TRAVEL_WITHIN_RAD, "brakes_engaged": brakes,
+            "not_judged": [n for j, n in enumerate(names) if j not in cols],
             "failures": rep.failures(REST_WITHIN_S, TRAVEL_WITHIN_RAD)}
 
 
@@ -316,6 +341,8 @@ def human_summary(s):
     if s["safe_stop"]:
         lines.append(f"safe stop at {s['safe_stop_ns']} ({s['detection_latency_ms']} ms after the fault): "
                      f"{s['safe_stop']['reason']}")
+        if s.get("fault_kind") in NO_LATENCY_PROMISE:
+            lines.append(f"no latency promise for a {s['fault_kind']} fault: {NO_LATENCY_PROMISE[s['fault_kind']]}")
     else:
         lines.append("no safe stop")
     eff = s.get("stop_effect")

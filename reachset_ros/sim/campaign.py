@@ -271,6 +271,14 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
     return events
 
 
+def judged_columns(fault, joint, names):
+    """Indices into ``names`` of the joints whose recorded readings can show a stop's effect:
+    all but the joint of a ``frozen`` sensor fault (its readings hold their last value whatever
+    the arm does; the arm's true state is not recorded). The demo and the campaign judge a stop
+    through this one rule."""
+    return [j for j, n in enumerate(names) if not (fault == "frozen" and n == joint)]
+
+
 def judge_rest(event, names, stamps_ns, q, qd, stop_ns, until_ns):
     """The stop's effect, read from the recorded ``/joint_states`` between the stop's stamp
     and ``until_ns`` (the reset): every joint at rest (abs(qd) < 0.01 rad/s to the end)
@@ -286,8 +294,7 @@ def judge_rest(event, names, stamps_ns, q, qd, stop_ns, until_ns):
     from .safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
     stamps_ns = np.asarray(stamps_ns, np.int64)
     keep = (stamps_ns >= stop_ns) & (stamps_ns <= until_ns)
-    judged = [j for j, n in enumerate(names) if not (event.kind == "sim" and event.fault == "frozen"
-                                                     and n == event.joint)]
+    judged = judged_columns(event.fault if event.kind == "sim" else None, event.joint, names)
     q, qd = np.asarray(q, float), np.asarray(qd, float)
     if event.kind == "sim" and event.fault == "nan":
         # the fault's own samples (NaN by design) are the sensor's, not the arm's motion

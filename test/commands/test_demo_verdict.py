@@ -11,3 +11,33 @@ def test_the_final_line_says_pass_or_fail_and_names_the_summary():
     line, status = verdict_line({"failures": ["a stop before the fault"], "guarantee_failures": ["R*_e left"]}, path)
     assert status == 1 and line.startswith("reachset demo: FAIL") and str(path) in line
     assert "a stop before the fault" in line and "R*_e left" in line
+
+
+def test_a_frozen_sensor_is_judged_by_what_its_data_can_show(tmp_path):
+    """The demo's frozen-sensor case (arm_2, seed 12) failed twice for what its data cannot show.
+    Before: its stop's effect was judged on the frozen joint's readings ("arm_2 not at rest": they
+    hold their last value whatever the arm does) and the 50 ms promise was measured from the
+    onset, while the frozen reading of a creeping joint stays right for 1.4 s. Now the frozen
+    joint is not judged (the campaign's rule, sim.campaign.judged_columns) and named, and a frozen
+    sensor carries no latency promise; every other joint and fault class is judged as before."""
+    import numpy as np
+    from reachset_ros import bags
+    from reachset_ros.commands.demo import fault_of, guarantee_failures, stop_effect
+    assert fault_of("frozen on arm_2_joint, magnitude 0") == ("frozen", "arm_2_joint")
+    assert fault_of(None) == (None, None)
+    names = ["arm_1_joint", "arm_2_joint"]
+    t0, stop = 10**18, 10**18 + 1_000_000_000
+    path = tmp_path / "bag"
+    with bags.BagWriter(path) as w:
+        for k in range(1500):                    # 6 s: arm_1 at rest, arm_2's reading frozen moving
+            t = t0 + k * 4_000_000
+            w.write(bags.JOINT_STATES, bags.joint_state(t, names, [0.1, 0.3], velocity=[0.0, 0.05]), t)
+    judged = stop_effect(path, stop, fault=("frozen", "arm_2_joint"))
+    assert judged["failures"] == [] and judged["not_judged"] == ["arm_2_joint"], judged
+    assert list(judged["joints"]) == ["arm_1_joint"]
+    plain = stop_effect(path, stop)
+    assert plain["failures"] and plain["not_judged"] == [], plain       # any other fault: judged
+    late = {"guarantee": {}, "detection_latency_ms": 1420.0}
+    assert guarantee_failures({**late, "fault_kind": "frozen"}) == []
+    assert guarantee_failures({**late, "fault_kind": "acceleration"}) and guarantee_failures(late)
+    assert np.isfinite(judged["seconds_after_stop"])
