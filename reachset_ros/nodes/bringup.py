@@ -68,7 +68,7 @@ def plan(sections: dict, sim: bool, workdir: Path, model: Path | None = None) ->
         ``{node: parameters}`` in start-up order: :func:`defaults`, then the file's ``/**``
         section, then the node's own section, then ``model_file`` and, for the observer and
         the controller, the model's gains (:func:`model_gains`; ``allow_uncertified`` false
-        unless the file sets it). Without a model (neither ``model`` nor a ``model_file`` in
+        unless the file sets it; a model without gains leaves both as they were). Without a model (neither ``model`` nor a ``model_file`` in
         the monitor's section) the monitor is not started, since it cannot check anything,
         and the controller does not wait for it: the suite runs UNMONITORED
         (:func:`unmonitored`), as for recording identification data.
@@ -87,10 +87,12 @@ def plan(sections: dict, sim: bool, workdir: Path, model: Path | None = None) ->
             params["wait_for_monitor"] = bool(own.get("wait_for_monitor", False))   # none will come
         if model is not None and node in MODEL_NODES:
             params["model_file"] = str(model)
-            if node in GAIN_NODES:
-                params.update(model_gains(model, node, params))
+            gains = model_gains(model, node, params) if node in GAIN_NODES else {}
+            if gains:
                 # the model's gains are certified for it: they start through the gate unless the
-                # file explicitly allows uncertified gains
+                # file explicitly allows uncertified gains (a model without gains, identified and
+                # not synthesised, leaves the start-up gains and their defaults as they were)
+                params.update(gains)
                 params["allow_uncertified"] = bool(own.get("allow_uncertified", False))
         out[node] = params
     return out

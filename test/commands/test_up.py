@@ -455,6 +455,10 @@ def test_up_with_a_model_starts_the_pair_with_its_gains_through_the_gate(tmp_pat
     order = list(reversed(JOINT_NAMES))
     p = bringup.plan({"controller_node": {"joints": order}}, True, tmp_path, model)["controller_node"]
     assert p["omega"] == [22.5 + JOINT_NAMES.index(j) for j in order]
+    # an identified model without gains: the start-up gains, with --sim's allow_uncertified, as before
+    from helpers import write_model
+    plain = bringup.plan({}, True, tmp_path, write_model(tmp_path / "plain.yaml"))
+    assert plain["controller_node"]["allow_uncertified"] is True and "omega" not in plain["controller_node"]
     bare = bringup.plan({}, True, tmp_path, None)
     assert bringup.unmonitored(bare) and "monitor_node" not in bare
     assert bare["controller_node"]["wait_for_monitor"] is False and "omega" not in bare["controller_node"]
