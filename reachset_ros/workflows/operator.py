@@ -153,10 +153,13 @@ class Operator:
         return {n for n, _ in self.commander.get_node_names_and_namespaces()}
 
     def wait_for_suite(self, timeout):
-        """Spin until the monitor is in the graph, its latched ``/safe_stop`` has arrived and the
-        subscriptions of :data:`RATE_TOPICS` have matched a publisher each (so that a rate
-        window counts from its start), or ``timeout`` s; whether the monitor and its state came."""
-        self.spin(timeout, until=lambda: (MONITOR in self.node_names() and bool(self.commander.stops)
+        """Spin until every expected node is in the graph (discovery can take seconds on a loaded
+        machine: a node not seen yet is not a missing node), its latched ``/safe_stop`` has
+        arrived and the subscriptions of :data:`RATE_TOPICS` have matched a publisher each (so
+        that a rate window counts from its start), or ``timeout`` s; whether the monitor and its
+        state came."""
+        self.spin(timeout, until=lambda: (set(self.expected) <= self.node_names() and MONITOR in self.node_names()
+                                          and bool(self.commander.stops)
                                           and all(s.get_publisher_count() for s in self.subs)))
         return MONITOR in self.node_names() and bool(self.commander.stops)
 

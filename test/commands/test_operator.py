@@ -27,8 +27,15 @@ CMD_TIMEOUT = 300
 SUITE_TIMEOUT = 600
 
 
+#: the operator commands' --timeout in these tests: discovery of the suite's nodes and their
+#: answers can take tens of seconds on a loaded 2-core machine (a status once found a node not
+#: yet discovered after the default 10 s); it only bounds a hang
+OPERATOR_TIMEOUT = ["--timeout", "60"]
+
+
 def cli(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "reachset_ros.cli", *args], capture_output=True, text=True,
+    extra = OPERATOR_TIMEOUT if args and args[0] in ("status", "watch", "stop", "reset", "gains") else []
+    return subprocess.run([sys.executable, "-m", "reachset_ros.cli", *args, *extra], capture_output=True, text=True,
                           check=False, timeout=CMD_TIMEOUT, env=env)
 
 
