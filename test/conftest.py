@@ -13,6 +13,24 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 # A domain nothing else on the machine uses (reachset_ros.domain, as `reachset up` and the demo
 # pick theirs): a random one once met a leftover node of an earlier run publishing /plant_input
 os.environ.setdefault("ROS_DOMAIN_ID", str(pick_domain_id()))
+
+
+def _worker_domain(worker: str, inherited: int) -> int:
+    """The domain of pytest-xdist worker ``gwN``: workers inherit the controller's
+    ``ROS_DOMAIN_ID`` (D, which the controller itself never uses), so each takes the free domain
+    at position ``D + N`` of the sorted free ids: two workers computing the list at the same
+    moment get different positions, and one computing it after the other's participants exist
+    no longer sees that domain as free."""
+    from reachset_ros.domain import DOMAIN_RANGE, domains_in_use
+    lo, hi = DOMAIN_RANGE
+    free = sorted(set(range(lo, hi + 1)) - domains_in_use() - {inherited})
+    return free[(inherited + int(worker.removeprefix("gw"))) % len(free)]
+
+
+# pytest-xdist runs the DDS tests on several workers (make test): each in a domain of its own
+if os.environ.get("PYTEST_XDIST_WORKER", "").startswith("gw"):
+    os.environ["ROS_DOMAIN_ID"] = str(_worker_domain(os.environ["PYTEST_XDIST_WORKER"],
+                                                     int(os.environ["ROS_DOMAIN_ID"])))
 # and the suite's Fast DDS discovery profile, as every node and driver uses it, for the
 # tests' own participants and every process they start (docs/reliability.md, start-up discovery)
 use_dds_profiles()
