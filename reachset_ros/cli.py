@@ -12,7 +12,7 @@ import importlib
 import os
 import sys
 
-from .commands import MODULES
+from .commands import COMMANDS
 from .errors import exit_status
 
 
@@ -83,23 +83,42 @@ class _DefaultsFormatter(argparse.HelpFormatter):
         return text + f" (default: {_shown(action.default)})".replace("%", "%%")
 
 
-def build_parser():
+def build_parser(only=None):
+    """The ``reachset`` parser.
+
+    Parameters
+    ----------
+    only : str, optional
+        Import and add the options of this command only (``""``: of none); every command is
+        still listed with its help (:data:`reachset_ros.commands.COMMANDS`). Default: all of
+        them (the docs and tests that walk every option).
+
+    Start-up (issue 38.1): a command's module imports what its options need; ``main`` builds
+    the parser of the one command on the command line, so ``reachset --help`` and a usage
+    error import no command at all.
+    """
     parser = _OneLineParser(
         prog="reachset", formatter_class=_DefaultsFormatter,
         description="Reachset-conformant identification, controller synthesis and conformance "
                     "checking for feedback-linearized robots (Liu, Schuermann, Althoff, IEEE T-RO).")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_OneLineParser)
-    for modname in MODULES:
-        mod = importlib.import_module(f".commands.{modname}", __package__)
-        sp = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP, formatter_class=_DefaultsFormatter)
+    for name, (modname, text) in COMMANDS.items():
+        sp = sub.add_parser(name, help=text, description=text, formatter_class=_DefaultsFormatter)
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show full tracebacks")
-        mod.add_arguments(sp)
-        sp.set_defaults(_run=mod.run)
+        if only is None or only == name:
+            mod = importlib.import_module(f".commands.{modname}", __package__)
+            mod.add_arguments(sp)
+            sp.set_defaults(_run=mod.run)
     return parser
 
 
+def command_in(argv) -> str:
+    """The command named on the command line ``argv`` (``""`` when there is none): the first
+    word that is not an option (the top-level parser's options take no value)."""
+    word = next((a for a in argv if not a.startswith("-")), "")
+    return word if word in COMMANDS else ""
 
 
 def main(argv=None):
@@ -108,7 +127,8 @@ def main(argv=None):
     sys.stdout, sys.stderr = (_ClosedPipeSafe(s) if not isinstance(s, _ClosedPipeSafe) and hasattr(s, "fileno")
                               else s for s in streams)
     try:
-        parser = build_parser()
+        argv = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(only=command_in(argv))
         args = parser.parse_args(argv)
         if not getattr(args, "command", None):
             parser.print_help()

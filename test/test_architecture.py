@@ -36,7 +36,7 @@ MAX_POSITIONAL = 8
 
 _LEAVES = {"errors", "atomic", "defaults", "guarantees"}
 #: the pure core below the process and ROS layers
-_CORE = _LEAVES | {"sets", "systems", "robot", "conformance", "bags", "synthesis", "fleet", "sim"}
+_CORE = _LEAVES | {"_lazy", "sets", "systems", "robot", "conformance", "bags", "synthesis", "fleet", "sim"}
 _PROCESS = {"domain", "params_file", "processes"}
 
 #: unit -> the reachset_ros units it may import (its own unit always). For the pure core and the
@@ -45,6 +45,8 @@ _PROCESS = {"domain", "params_file", "processes"}
 ALLOWED = {
     "__init__": set(),
     "errors": set(),
+    # lazy package attributes (SPEC 1's attach, issue 38.1): a leaf the packages' __init__ use
+    "_lazy": set(),
     # the registry of defaults (python-control's config.py pattern): a leaf every layer may fill
     "defaults": {"errors"},
     # the guarantee's rows and the refusal naming one: a leaf every layer may raise
@@ -52,13 +54,13 @@ ALLOWED = {
     "atomic": {"errors"},
     "domain": {"errors"},
     "params_file": {"errors"},
-    "sets": {"errors"},
-    "systems": {"errors", "defaults", "guarantees", "sets"},
+    "sets": {"errors", "_lazy"},
+    "systems": {"errors", "defaults", "guarantees", "sets", "_lazy"},
     # bags: robot.lwa4p writes the imported LWA-4P recordings as bags (bags imports only errors)
-    "robot": {"errors", "atomic", "bags"},
-    "conformance": {"errors", "atomic", "guarantees", "sets", "systems"},
-    "bags": {"errors"},
-    "synthesis": {"errors", "defaults", "guarantees", "sets", "systems", "conformance", "bags"},
+    "robot": {"errors", "atomic", "bags", "_lazy"},
+    "conformance": {"errors", "atomic", "guarantees", "sets", "systems", "_lazy"},
+    "bags": {"errors", "_lazy"},
+    "synthesis": {"errors", "defaults", "guarantees", "sets", "systems", "conformance", "bags", "_lazy"},
     "fleet": {"errors", "robot", "conformance", "bags", "synthesis"},
     "sim": {"errors", "defaults", "systems", "robot", "conformance", "bags"},
     "plots": {"errors", "conformance", "bags", "synthesis"},

@@ -38,49 +38,41 @@ Timings: ``docs/performance.md``. Every public name is importable from this pack
 (``from reachset_ros.bags import read_joint_series``); code outside the package imports from it
 rather than from the submodules.
 
-May import: :mod:`reachset_ros.errors` only.
+May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.errors` only.
 """
-from .cdr import FAST_TYPES, CdrError, cdr_layout, decode_payloads, decode_rows
-from .messages import (
-    ESTIMATE_TOPIC,
-    ESTIMATE_TYPE,
-    FAULT_ONSET_TOPIC,
-    FAULT_ONSET_TYPE,
-    JOINT_STATE_TYPE,
-    JOINT_STATES,
-    PLANT_INPUT,
-    PLANT_INPUT_TYPE,
-    REACHSET_MSGS,
-    REFERENCE_TOPIC,
-    REFERENCE_TYPE,
-    SAFE_STOP_TOPIC,
-    SAFE_STOP_TYPE,
-    STATUS_TOPIC,
-    STATUS_TYPE,
-    header,
-    header_stamp_ns,
-    joint_state,
-    msg_definition,
-    plant_input,
-    stamp_msg,
-    typestore,
-)
-from .decoded import read_messages, read_topic_rows
-from .references import Reference, read_estimates, read_references
-from .series import (
-    PERIOD_TOLERANCE,
-    JointSeries,
-    ReadReport,
-    check_period,
-    concat_series,
-    measured_period,
-    merge_reports,
-    read_joint_series,
-    segments_of,
-)
-from .mcap import TRUNCATED_MCAP
-from .topics import VALUE_FIELDS, check_bag, check_bag_path, read_fields, read_topics
-from .writer import BagWriter
+from .._lazy import attach
+
+# each public name is imported from its submodule on first use (reachset_ros._lazy, issue 38.1)
+__getattr__, __dir__, _EXPORTED = attach(__name__, {
+    ".cdr": [
+        "FAST_TYPES", "CdrError", "cdr_layout", "decode_payloads", "decode_rows",
+    ],
+    ".messages": [
+        "ESTIMATE_TOPIC", "ESTIMATE_TYPE", "FAULT_ONSET_TOPIC", "FAULT_ONSET_TYPE", "JOINT_STATE_TYPE",
+        "JOINT_STATES", "PLANT_INPUT", "PLANT_INPUT_TYPE", "REACHSET_MSGS", "REFERENCE_TOPIC",
+        "REFERENCE_TYPE", "SAFE_STOP_TOPIC", "SAFE_STOP_TYPE", "STATUS_TOPIC", "STATUS_TYPE", "header",
+        "header_stamp_ns", "joint_state", "msg_definition", "plant_input", "stamp_msg", "typestore",
+    ],
+    ".decoded": [
+        "read_messages", "read_topic_rows",
+    ],
+    ".references": [
+        "Reference", "read_estimates", "read_references",
+    ],
+    ".series": [
+        "PERIOD_TOLERANCE", "JointSeries", "ReadReport", "check_period", "concat_series", "measured_period",
+        "merge_reports", "read_joint_series", "segments_of",
+    ],
+    ".mcap": [
+        "TRUNCATED_MCAP",
+    ],
+    ".topics": [
+        "VALUE_FIELDS", "check_bag", "check_bag_path", "read_fields", "read_topics",
+    ],
+    ".writer": [
+        "BagWriter",
+    ],
+})
 
 __all__ = [
     # layout and messages

@@ -15,7 +15,6 @@ from heapq import merge
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from ..errors import ReachsetError, first_line
 from .messages import header_stamp_ns, typestore
@@ -53,6 +52,7 @@ def read_messages(paths, topics=None):
     (naming the topic; the other topics of the bag can still be read); other rosbags exceptions
     while reading pass unchanged.
     """
+    from rosbags.rosbag2 import Reader  # lazy: rosbags.rosbag2's start-up (issue 38.1)
     ts = typestore()
     wanted = None if topics is None else set(topics)
     with ExitStack() as stack:
@@ -72,6 +72,7 @@ def read_topic_rows(paths, topic, fields, joints=None):
     Decoded with rosbags (the bag's own message definitions); sorted by header stamp,
     duplicate stamps dropped. Returns ``None`` when no bag has the topic.
     """
+    from rosbags.rosbag2 import Reader  # lazy: rosbags.rosbag2's start-up (issue 38.1)
     ts = typestore()
     cols, found = {}, False
     for p in paths:

@@ -19,7 +19,6 @@ from array import array
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from ..errors import ReachsetError
 from .cdr import FAST_TYPES, CdrError, _rosbags_deserializer, decode_rows
@@ -350,6 +349,7 @@ def read_fields(paths, requests, expect=None, joint_names=None):
         try:
             files = _preflight(path)
             where = ", ".join(f.name for f in files)
+            from rosbags.rosbag2 import Reader  # lazy: rosbags.rosbag2's start-up (issue 38.1)
             with Reader(path) as reader:
                 types = {}
                 for c in reader.connections:

@@ -9,8 +9,6 @@ import os
 import shutil
 from pathlib import Path
 
-from rosbags.rosbag2 import Writer
-from rosbags.rosbag2.enums import StoragePlugin
 
 from ..errors import ReachsetError
 from .messages import JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE, typestore
@@ -46,6 +44,8 @@ class BagWriter:
         if self._tmp_parent.exists():
             shutil.rmtree(self._tmp_parent)
         self.tmp = self._tmp_parent / self.path.name
+        from rosbags.rosbag2 import Writer  # lazy: rosbags.rosbag2's start-up (issue 38.1)
+        from rosbags.rosbag2.enums import StoragePlugin
         plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
         self._writer = Writer(self.tmp, version=9, storage_plugin=plugin)
         self._conns = {}

@@ -26,10 +26,10 @@ from ..systems.controllers import compensated_feedback, static_feedback
 from ..systems.gains import family_controller
 from ..systems.observers import extended_state_observer, high_gain_observer
 from ..systems.plant import lwa4p_joint_plant
-from . import emit
+from . import emit, help_of
 
 NAME = "analyze"
-HELP = "reachable tracking error R_e and reachable input R_u of one joint's closed loop"
+HELP = help_of(NAME)
 
 defaults.register("analyze.hg", {
     "alpha_w": ([0.0348, 3.59], "scalings of the two process-disturbance generators identified for axis 1 "

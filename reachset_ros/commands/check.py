@@ -8,13 +8,13 @@ from ..conformance import model as mdl
 from ..conformance.theorem1 import check, deviation_extremes
 from ..errors import ReachsetError
 from ..plots import plot_deviations
-from . import emit
+from . import emit, help_of
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, fleet_of, load_series, parse_joints, read_spec,
                        reader_options, require_horizon, topics_of)
 from ._progress import bag_count, progress
 
 NAME = "check"
-HELP = "check bags for reachset conformance against a model (batch, vectorised)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -30,10 +30,10 @@ from ..errors import ReachsetError
 from ..plots import demo_plots
 from ..sim.safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
 from ..systems.stopping import rest_after_stop
-from . import emit
+from . import emit, help_of
 
 NAME = "demo"
-HELP = "run the whole system on the simulated arm: record, synthesise, apply, monitor, inject a fault"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

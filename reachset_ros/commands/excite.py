@@ -32,10 +32,10 @@ from .. import defaults
 from ..errors import ReachsetError
 from ..sim import excite as ex
 from ..sim.reference import ReferenceConfig
-from . import emit
+from . import emit, help_of
 
 NAME = "excite"
-HELP = "write identification references that reach the reference class' limits on every joint (a /reference bag)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

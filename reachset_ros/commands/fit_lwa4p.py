@@ -13,10 +13,10 @@ from pathlib import Path
 
 from ..errors import ReachsetError
 from ..robot import lwa4p
-from . import emit
+from . import emit, help_of
 
 NAME = "fit-lwa4p"
-HELP = "identify the nominal LWA-4P model (inertias, armature, friction, torque scale) from recordings"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

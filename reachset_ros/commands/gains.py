@@ -11,11 +11,11 @@ refused (one line: which node and why; nothing changed), 2 on bad input (nothing
 """
 import sys
 
-from . import emit
+from . import emit, help_of
 from ._suite import add_suite_arguments, operator
 
 NAME = "gains"
-HELP = "get or set (atomically, through the pair's gate) the controller/observer gains of a running suite"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -42,13 +42,13 @@ from .. import defaults
 from ..conformance.estimators import ESTIMATORS
 from ..workflows.coverage import warning_lines
 from ..workflows.identify import DEFAULT_GRID, IdentifyOptions, check_options, identify
-from . import emit
+from . import emit, help_of
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
                        reader_options, topics_of)
 from ._progress import bag_count, progress
 
 NAME = "identify"
-HELP = "identify a reachset-conformant model (min ||W||+||V||, Theorem 1) from bags"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -7,10 +7,10 @@ by a pause in the stamps. See reachset_ros.robot.lwa4p.import_runs for the exact
 """
 from ..errors import ReachsetError
 from ..robot import lwa4p
-from . import emit
+from . import emit, help_of
 
 NAME = "import-lwa4p"
-HELP = "convert the real Schunk LWA-4P recordings to a rosbag2 bag (/joint_states, /plant_input)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -17,10 +17,10 @@ from ..atomic import write_yaml
 from ..errors import ReachsetError
 from ..robot import input_limits as il
 from ..robot.dynamics import TABLE1_TAU_MAX, load_model
-from . import emit
+from . import emit, help_of
 
 NAME = "input-limits"
-HELP = "largest input set U_p per axis from the torque limits (paper eq. 11, Table I), sound"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -14,15 +14,14 @@ import shlex
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from ..bags import (FAULT_ONSET_TOPIC, FAULT_ONSET_TYPE, JOINT_STATE_TYPE, JOINT_STATES, PLANT_INPUT, PLANT_INPUT_TYPE,
                     SAFE_STOP_TYPE, check_bag, header_stamp_ns, typestore)
 from ..errors import ReachsetError, first_line
-from . import emit
+from . import emit, help_of
 
 NAME = "inspect"
-HELP = "what a bag holds (topics, rates, joints, sampling period) and the identify command for it"
+HELP = help_of(NAME)
 
 #: the kind of the monitor's start-up stop (held until its model is loaded): not warned about
 NOT_READY = "not_ready"
@@ -99,6 +98,7 @@ def _add(e, msg, *, msgtype, topic, t, events):
 
 
 def _read_bag(path, ts, topics, events):
+    from rosbags.rosbag2 import Reader  # lazy: rosbags.rosbag2's start-up (issue 38.1)
     with Reader(path) as reader:
         entries = {c.topic: _entry(topics, c, path) for c in reader.connections}
         for conn, t, raw in reader.messages():

@@ -15,12 +15,12 @@ from ..conformance import model as mdl
 from ..conformance.kernels import test_case_starts
 from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
 from ..errors import ReachsetError
-from . import emit
+from . import emit, help_of
 from ._bagargs import add_bag_arguments, load_series, require_horizon, reader_options, topics_of
 from ._progress import bag_count, progress
 
 NAME = "replay"
-HELP = "replay bags through the online monitor core tick by tick (same verdicts as check)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -12,11 +12,11 @@ line; nothing written: the page is written atomically).
 import sys
 
 from ..report import write_report
-from . import emit
+from . import emit, help_of
 from ._bagargs import add_bag_arguments, parse_joints, reader_options, topics_of
 
 NAME = "report"
-HELP = "write one self-contained HTML report of bags checked against a model (figures, stops, guarantee)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

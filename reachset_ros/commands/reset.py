@@ -6,11 +6,11 @@ the caller and ``--reason``; the monitor grants it only once the stop's conditio
 again every 0.25 s while refused, for up to S seconds (the arm coming to rest). Prints the
 monitor's answer; exit status 0 when granted, 1 when refused.
 """
-from . import emit
+from . import emit, help_of
 from ._suite import add_suite_arguments, operator
 
 NAME = "reset"
-HELP = "the monitor's audited reset of the safe stop of a running suite; exit 1 if refused"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -1,9 +1,9 @@
 """``reachset selftest``: two real processes exchange PlantInput over DDS."""
 from ..errors import ReachsetError
-from . import emit
+from . import emit, help_of
 
 NAME = "selftest"
-HELP = "two real processes exchange PlantInput over DDS; a parameter is set across them"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

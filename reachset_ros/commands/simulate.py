@@ -35,10 +35,10 @@ from ..errors import ReachsetError
 from ..robot.descriptions import resolve_urdf
 from ..sim import recordings as sr
 from ..sim import simulator as simm
-from . import emit
+from . import emit, help_of
 
 NAME = "simulate"
-HELP = "simulate any arm (URDF) in closed loop and record /joint_states with effort to a bag"
+HELP = help_of(NAME)
 
 #: --fault KIND -> (fault class, the field --fault-magnitude sets, its unit, default)
 FAULTS = {"payload": (simm.Payload, "mass", "kg", 2.0),

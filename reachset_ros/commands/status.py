@@ -7,11 +7,11 @@ gains and each joint's set use in the newest ``/conformance/status``. Exit statu
 node of the suite is up, 1 when one is missing (the rest is printed all the same), 2 when no
 suite is found.
 """
-from . import emit
+from . import emit, help_of
 from ._suite import add_suite_arguments, no_monitor, operator
 
 NAME = "status"
-HELP = "nodes, stop state, rates, model, gains and set use of a running suite (`reachset up`)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -6,11 +6,11 @@ controller carries out its category-1 stop (the braking law, then the holding br
 the audited reset (``reachset reset``) clears it. A stop latched already stays as it is (the
 answer says which). Exit status 0 once a stop is latched, 1 when the monitor does not latch one.
 """
-from . import emit
+from . import emit, help_of
 from ._suite import add_suite_arguments, operator
 
 NAME = "stop"
-HELP = "a manual, audited category-1 safe stop of a running suite (kind manual; `reachset reset` clears it)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

@@ -32,13 +32,13 @@ from ..errors import ReachsetError
 from ..synthesis.config import PARAMS
 from ..synthesis.reference_error import ReferenceClass, ReferenceMethod
 from ..workflows.synthesize import SynthesisOptions, synthesize
-from . import emit
+from . import emit, help_of
 from ._bagargs import (add_bag_arguments, add_fleet_arguments, check_out_path, fleet_of, parse_joints, read_spec,
                        reader_options, topics_of)
 from ._progress import bag_count, progress
 
 NAME = "synthesize"
-HELP = "combined controller synthesis and reachset-conformant identification (paper eq. 10)"
+HELP = help_of(NAME)
 
 
 def add_arguments(p):

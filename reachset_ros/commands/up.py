@@ -19,9 +19,10 @@ from pathlib import Path
 
 from ..domain import pick_domain_id, write_suite_state
 from ..errors import ReachsetError
+from . import help_of
 
 NAME = "up"
-HELP = "bring the node suite up in order in a fresh DDS domain; SIGINT/SIGTERM stop it"
+HELP = help_of(NAME)
 
 
 #: said at the start and once every node is up when no model is given (issue 36.1)

@@ -13,10 +13,11 @@ import json
 import sys
 import time
 
+from . import help_of
 from ._suite import add_suite_arguments, no_monitor, operator
 
 NAME = "watch"
-HELP = "a live view of a running suite: per-joint set use, rates, a STOP banner (Ctrl-C ends it)"
+HELP = help_of(NAME)
 #: width of the set-use bar, characters, for a use of 1.0 (the boundary)
 BAR = 30
 #: seconds over which the rates are measured

@@ -49,26 +49,50 @@ All arithmetic on the nominal trajectories uses the element-wise :func:`matvec`,
 batch sweep and the online monitor, which advances one tick at a time, produce bitwise
 identical deviations and hence identical verdicts.
 
-May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
+May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
 :mod:`reachset_ros.errors`, :mod:`reachset_ros.guarantees` and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
 nodes. Code inside reachset_ros imports from the submodules; ``from reachset_ros import conformance as cf; cf.sweep(...)`` is for users,
 tests and tools.
 """
-from .corollary1 import (StateDeviations, corollary1_constraints, identify_corollary1,
-                         state_deviations)
-from .estimators import ESTIMATORS, Estimator
-from .identify import (IdentifiedSets, frobenius_weights, identification_constraints, identify_quadratic,
-                       identify_sets, make_sound, set_norm_cost, stable_horizon, z_bounds, z_to_xi)
-from .kernels import (advance, as_2d, matvec, matvec_into, matvec_plan, minimum_horizon, predict_output,
-                      require_horizon, require_minimum_horizon, require_runs, sweep, test_case_starts)
-from .model import ConformanceModel, JointSets
-from .monitor import JointMonitor, Monitor, MonitorModel, TickResult
-from .monitor_core import MonitorCore
-from .theorem1 import (CheckResult, Deviations, Theorem1, check, check_extremes, combine, deviation_extremes,
-                       deviation_extremes_many, initial_error_maps, output_normals, xi_of)
-from .watches import CoverageWatch, FaultEvent, StuckSensorWatch, TickEvent
-from .validation import (CaseCheck, check_many, detection_delay, fault_onset_tick,
-                         inject_acceleration_fault, validation_grid)
+from .._lazy import attach
+
+# each public name is imported from its submodule on first use (reachset_ros._lazy, issue 38.1)
+__getattr__, __dir__, _EXPORTED = attach(__name__, {
+    ".corollary1": [
+        "StateDeviations", "corollary1_constraints", "identify_corollary1", "state_deviations",
+    ],
+    ".estimators": [
+        "ESTIMATORS", "Estimator",
+    ],
+    ".identify": [
+        "IdentifiedSets", "frobenius_weights", "identification_constraints", "identify_quadratic",
+        "identify_sets", "make_sound", "set_norm_cost", "stable_horizon", "z_bounds", "z_to_xi",
+    ],
+    ".kernels": [
+        "advance", "as_2d", "matvec", "matvec_into", "matvec_plan", "minimum_horizon", "predict_output",
+        "require_horizon", "require_minimum_horizon", "require_runs", "sweep", "test_case_starts",
+    ],
+    ".model": [
+        "ConformanceModel", "JointSets",
+    ],
+    ".monitor": [
+        "JointMonitor", "Monitor", "MonitorModel", "TickResult",
+    ],
+    ".monitor_core": [
+        "MonitorCore",
+    ],
+    ".theorem1": [
+        "CheckResult", "Deviations", "Theorem1", "check", "check_extremes", "combine", "deviation_extremes",
+        "deviation_extremes_many", "initial_error_maps", "output_normals", "xi_of",
+    ],
+    ".watches": [
+        "CoverageWatch", "FaultEvent", "StuckSensorWatch", "TickEvent",
+    ],
+    ".validation": [
+        "CaseCheck", "check_many", "detection_delay", "fault_onset_tick", "inject_acceleration_fault",
+        "validation_grid",
+    ],
+})
 
 __all__ = [
     # kernels

@@ -16,7 +16,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
 
 from ..errors import InfeasibleError, ReachsetError
 from .theorem1 import xi_of
@@ -167,6 +166,7 @@ def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower
         lo = np.broadcast_to(np.asarray(alpha_lower, float), (pw + pv,))
         for i in range(pw + pv):
             bounds[pw + ny + i] = (float(lo[i]), None)
+    from scipy.optimize import linprog  # lazy: 0.3 s of start-up (issue 38.1)
     res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
     if res.status != 0:
         raise InfeasibleError(f"identification LP failed: {res.message}")

@@ -8,7 +8,7 @@ parameters) and :mod:`~reachset_ros.nodes.selftest` (the DDS self-test). docs/no
 documents each node's interface. The workflows over the suite (``reachset demo``, the fault
 campaign, the suite commander they use) are in :mod:`reachset_ros.workflows`.
 
-May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic`, :mod:`reachset_ros.defaults`, :mod:`reachset_ros.guarantees`,
+May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros._lazy`, :mod:`reachset_ros.atomic`, :mod:`reachset_ros.defaults`, :mod:`reachset_ros.guarantees`,
 :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`, :mod:`reachset_ros.robot`,
 :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.synthesis`,
 :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`) and the processes

@@ -34,20 +34,29 @@ The names of ``dynamics``, ``model_error`` and ``inertial_id`` are re-exported h
 (``from reachset_ros import robot as rb; rb.load_model()``); ``input_limits``, ``interval``
 and ``lwa4p`` are used as modules.
 
-May import: :mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic` and :mod:`reachset_ros.bags`
+May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic` and :mod:`reachset_ros.bags`
 (which ``lwa4p`` writes the imported recordings with); otherwise Pinocchio, numpy, scipy,
 PyYAML, and cvxpy (lazily, for the LMI identification only).
 """
-from .dynamics import (COULOMB_VELOCITY, DEFAULT_URDF, JOINT_NAMES, TABLE1_QD_MAX, TABLE1_Q_MAX,
-                       TABLE1_TAU_MAX, U_REF, Friction, RobotModel, apply_params, create_data,
-                       feedback_linearization, forward_dynamics, friction_torque, inverse_fl,
-                       load_model, logged_to_torque, mass_matrix, min_mass_eigenvalue,
-                       model_params_dict, psi)
-from .inertial_id import (JOINT_PARAM_NAMES, LINK_PARAM_NAMES, PARAMS_PER_LINK, BaseParameters,
-                          Identification, TorqueGram, identify_inertial, parameter_names,
-                          parameter_vector, predict_logged, random_states, regressor,
-                          regressor_batch, torque_gram, with_parameters)
-from .model_error import ModelError, add_payload, perturb
+from .._lazy import attach
+
+# each public name is imported from its submodule on first use (reachset_ros._lazy, issue 38.1)
+__getattr__, __dir__, _EXPORTED = attach(__name__, {
+    ".dynamics": [
+        "COULOMB_VELOCITY", "DEFAULT_URDF", "JOINT_NAMES", "TABLE1_QD_MAX", "TABLE1_Q_MAX", "TABLE1_TAU_MAX",
+        "U_REF", "Friction", "RobotModel", "apply_params", "create_data", "feedback_linearization",
+        "forward_dynamics", "friction_torque", "inverse_fl", "load_model", "logged_to_torque", "mass_matrix",
+        "min_mass_eigenvalue", "model_params_dict", "psi",
+    ],
+    ".inertial_id": [
+        "JOINT_PARAM_NAMES", "LINK_PARAM_NAMES", "PARAMS_PER_LINK", "BaseParameters", "Identification",
+        "TorqueGram", "identify_inertial", "parameter_names", "parameter_vector", "predict_logged",
+        "random_states", "regressor", "regressor_batch", "torque_gram", "with_parameters",
+    ],
+    ".model_error": [
+        "ModelError", "add_payload", "perturb",
+    ],
+})
 
 __all__ = [
     # dynamics

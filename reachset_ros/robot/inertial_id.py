@@ -21,8 +21,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg
-import scipy.optimize
 
 from ..errors import ReachsetError
 from .dynamics import Friction, RobotModel, create_data, feedback_linearization
@@ -148,6 +146,7 @@ class BaseParameters:
         rng = np.random.default_rng(seed)
         Y = regressor_batch(model, data, *random_states(model, n_samples, rng))
         Y = Y.reshape(-1, Y.shape[-1])
+        import scipy.linalg  # lazy: scipy's start-up (issue 38.1)
         _, R, P = scipy.linalg.qr(Y, mode="economic", pivoting=True)
         diag = np.abs(np.diag(R))
         r = int(np.sum(diag > tol * diag[0]))
@@ -499,6 +498,7 @@ def _fit_ls(data: _WeightedData, *, base, theta0, prior_weight, fit_scale, setti
 
     rho = rho0
     if fit_scale:
+        import scipy.optimize  # lazy: scipy's start-up (issue 38.1)
         sol = scipy.optimize.minimize(cost, rho0, method="L-BFGS-B",
                                       bounds=[(r - 5.0, r + 5.0) for r in rho0])
         rho = sol.x
@@ -540,6 +540,7 @@ def _fit_lmi(data: _WeightedData, *, model, theta0, prior_weight, min_armature, 
 
     rho = rho0.copy()
     if fit_scale:
+        import scipy.optimize  # lazy: scipy's start-up (issue 38.1)
         sol = scipy.optimize.minimize(profile, rho0, jac=True, method="L-BFGS-B",
                                       bounds=[(r - 5.0, r + 5.0) for r in rho0],
                                       options={"maxiter": max_iter, "ftol": tol,

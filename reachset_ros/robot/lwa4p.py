@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from scipy.signal import butter, filtfilt
 
 from ..atomic import write_yaml
 from ..bags import JOINT_STATES, PLANT_INPUT, BagWriter, joint_state, plant_input
@@ -216,6 +215,7 @@ class Preprocessing:
 
 
 def _lowpass(x, prep: Preprocessing):
+    from scipy.signal import butter, filtfilt  # lazy: scipy.signal's start-up (issue 38.1)
     b, a = butter(prep.order, prep.cutoff_hz / (0.5 / DT))
     return filtfilt(b, a, x, axis=0)
 

@@ -21,7 +21,6 @@ import math
 from itertools import combinations
 
 import numpy as np
-from scipy.optimize import linprog
 
 __all__ = ["Zonotope", "halfspace_normals", "box", "MAX_FACETS"]
 
@@ -609,6 +608,7 @@ def _lp_contains(G, dv, tol, scale):
     zero = np.zeros((n, 1))
     A_ub = np.block([[I, -one], [-I, -one], [Gn, zero], [-Gn, zero]])
     b_ub = np.concatenate([np.zeros(2 * m), b + tau, -b + tau])
+    from scipy.optimize import linprog  # lazy: 0.3 s of start-up (issue 38.1)
     res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * m + [(0, None)], method="highs")
     if res.status == 2:  # infeasible: p - c is not in span(G) within the tolerance
         return False

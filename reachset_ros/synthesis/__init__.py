@@ -38,22 +38,46 @@ Simulated recordings for tests, benchmarks and the docs live in
 :mod:`reachset_ros.sim.recordings`; the references recorded in bags in
 :mod:`reachset_ros.bags.references`.
 
-May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
+May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
 :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.defaults`,
 :mod:`reachset_ros.guarantees` and :mod:`reachset_ros.errors`; never ``fleet``, ``sim``, ``robot`` or the ROS nodes. Pure numpy/scipy (plus rosbags to read
 the optional reference/estimate topics); no ROS import.
 """
-from .config import (DEFAULT_CONFIG, PARAMS, PENALTY, U_MARGIN, SearchSpace, components_from_gains,
-                     config_path, load_config, u_max_for)
-from ..systems.reference_loop import (LoopIO, LTIPlan, lti_simulate, loop_io, simulate_closed_loop, steady_state,
-                                      steady_state_solver)
-from .reference_error import (ReferenceClass, ReferenceErrorSets, ReferenceMethod, class_reference_error,
-                              reference_error, reference_windows)
-from .problem import AlphaPolytope, JointProblem, problems_from_series
-from .search import Evaluation, Evaluator, LoopData
-from .result import JointResult
-from .modes import combined, lqg_baseline, reidentify, separate, synthesize
-from .pipeline import BagSynthesis, iterate, synthesize_bags
+from .._lazy import attach
+
+# each public name is imported from its submodule on first use (reachset_ros._lazy, issue 38.1)
+__getattr__, __dir__, _EXPORTED = attach(__name__, {
+    ".config": [
+        "DEFAULT_CONFIG", "PARAMS", "PENALTY", "U_MARGIN", "SearchSpace", "components_from_gains",
+        "config_path", "load_config", "u_max_for",
+    ],
+    "..systems.reference_loop": [
+        "LoopIO", "LTIPlan", "lti_simulate", "loop_io", "simulate_closed_loop", "steady_state",
+        "steady_state_solver",
+    ],
+    ".reference_error": [
+        "ReferenceClass", "ReferenceErrorSets", "ReferenceMethod", "class_reference_error", "reference_error",
+        "reference_windows",
+    ],
+    ".problem": [
+        "AlphaPolytope", "JointProblem", "problems_from_series",
+    ],
+    ".search": [
+        "Evaluation", "Evaluator", "LoopData",
+    ],
+    ".result": [
+        "JointResult",
+    ],
+    ".modes": [
+        "combined", "lqg_baseline", "reidentify", "separate", "synthesize",
+    ],
+    ".pipeline": [
+        "BagSynthesis", "iterate", "synthesize_bags",
+    ],
+})
+# ``reference_error`` names both a submodule and its function: importing the submodule would set
+# the package's attribute to the module, so the function is imported now (numpy only)
+from .reference_error import reference_error  # noqa: E402
 
 __all__ = ["DEFAULT_CONFIG", "load_config", "config_path", "u_max_for", "SearchSpace", "PARAMS", "PENALTY",
            "U_MARGIN", "components_from_gains", "LoopIO", "loop_io", "LTIPlan", "lti_simulate",

@@ -16,7 +16,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
 
 from .. import conformance as cf
 from .. import guarantees
@@ -107,6 +106,7 @@ class AlphaPolytope:
         bounds = [(float(lo / sj), None) for lo, sj in zip(self.lower, s)]
         A_ub = np.vstack(A) if A else None
         b_ub = np.concatenate(b) if b else None
+        from scipy.optimize import linprog  # lazy: 0.3 s of start-up (issue 38.1)
         res = linprog(cs / scale, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
         if res.status == 2:
             return None, None

@@ -20,8 +20,6 @@ import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.stats import qmc
 
 from ..sets.reachability import NotStableError, spectral_radius_reachable
 from ..systems.closedloop import close_loop, radius_coefficients, stability
@@ -173,6 +171,9 @@ def _search(evaluator, space, seeds, search_cfg, rng_seed, global_stage=True):
     Without ``global_stage`` only the seeds are refined (used when re-searching after the
     reference windows were extended).
     """
+    # lazy: scipy.optimize and scipy.stats cost 0.7 s of every start-up (issue 38.1)
+    from scipy.optimize import minimize
+    from scipy.stats import qmc
     d = space.dim
     if d == 0:
         ev = evaluator(space.full())

@@ -23,21 +23,37 @@ numpy/scipy:
   :func:`steady_state`): what the reference error of Appendix B and the simulated recordings
   run.
 
-May import: :mod:`reachset_ros.sets`, :mod:`reachset_ros.defaults` (registers the gains' defaults),
+May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.sets`, :mod:`reachset_ros.defaults` (registers the gains' defaults),
 :mod:`reachset_ros.guarantees` (a refusal names the row it protects) and :mod:`reachset_ros.errors` only.
 """
-from .closedloop import (SETTLING_TOLERANCE, Analysis, ClosedLoop, FeedbackLaw, Stability, analyze,
-                         center_coefficients, close_loop, closed_loop_tick, radius_coefficients, settling_ticks,
-                         settling_time, simulate, simulate_ticks, stability)
-from .controllers import (LinearController, compensated_feedback, control_input, lqg, lqr, lqr_gain,
-                          static_feedback)
-from .gains import DEFAULTS, Gains, check_gains
-from .observers import (LinearObserver, ObserverState, bilinear, extended_state_observer,
-                        high_gain_observer, kalman_filter, observer_output, observer_update,
-                        paper_lqg_covariances)
-from .plant import LinearPlant, lwa4p_joint_plant, lwa4p_robot_model
-from .reference_loop import (LoopIO, LTIPlan, lti_simulate, loop_io, reference_inputs, reference_state,
-                             simulate_closed_loop, steady_state, steady_state_solver)
+from .._lazy import attach
+
+# each public name is imported from its submodule on first use (reachset_ros._lazy, issue 38.1)
+__getattr__, __dir__, _EXPORTED = attach(__name__, {
+    ".closedloop": [
+        "SETTLING_TOLERANCE", "Analysis", "ClosedLoop", "FeedbackLaw", "Stability", "analyze",
+        "center_coefficients", "close_loop", "closed_loop_tick", "radius_coefficients", "settling_ticks",
+        "settling_time", "simulate", "simulate_ticks", "stability",
+    ],
+    ".controllers": [
+        "LinearController", "compensated_feedback", "control_input", "lqg", "lqr", "lqr_gain",
+        "static_feedback",
+    ],
+    ".gains": [
+        "DEFAULTS", "Gains", "check_gains",
+    ],
+    ".observers": [
+        "LinearObserver", "ObserverState", "bilinear", "extended_state_observer", "high_gain_observer",
+        "kalman_filter", "observer_output", "observer_update", "paper_lqg_covariances",
+    ],
+    ".plant": [
+        "LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
+    ],
+    ".reference_loop": [
+        "LoopIO", "LTIPlan", "lti_simulate", "loop_io", "reference_inputs", "reference_state",
+        "simulate_closed_loop", "steady_state", "steady_state_solver",
+    ],
+})
 
 __all__ = ["LinearPlant", "lwa4p_joint_plant", "lwa4p_robot_model",
            "LinearObserver", "ObserverState", "bilinear", "high_gain_observer",

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
 
 from .observers import kalman_filter, paper_lqg_covariances
 
@@ -146,6 +145,7 @@ def lqr_gain(A, B, Q, R):
     """
     A, B = np.atleast_2d(A), np.atleast_2d(B)
     Q, R = np.atleast_2d(np.asarray(Q, float)), np.atleast_2d(np.asarray(R, float))
+    from scipy.linalg import solve_discrete_are  # lazy: scipy.linalg's start-up (issue 38.1)
     P = solve_discrete_are(A, B, Q, R)
     return np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
 

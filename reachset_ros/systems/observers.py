@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
 
 __all__ = ["LinearObserver", "ObserverState", "bilinear", "high_gain_observer",
            "extended_state_observer", "kalman_filter", "paper_lqg_covariances",
@@ -329,6 +328,7 @@ def kalman_filter(model, Sw, Sv, form="predictor"):
     if Sw.shape != (n, n) or Sv.shape != (p, p):
         raise ValueError(f"Kalman covariances have shapes {Sw.shape}, {Sv.shape}; expected {(n, n)}, {(p, p)}")
     scale = float(np.max(np.abs(Sv))) or float(np.max(np.abs(Sw))) or 1.0
+    from scipy.linalg import solve_discrete_are  # lazy: scipy.linalg's start-up (issue 38.1)
     P = solve_discrete_are(A.T, C.T, Sw / scale, Sv / scale) * scale
     S = C @ P @ C.T + Sv
     M = np.linalg.solve(S.T, (P @ C.T).T).T  # innovation gain P C^T S^-1

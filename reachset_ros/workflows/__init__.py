@@ -15,7 +15,7 @@ the fault campaign run, as keyword-only functions returning typed, frozen result
 Submodules are imported on use (this package imports none of them: no ROS import here;
 :mod:`.identify` and :mod:`.synthesize` import no rclpy at all).
 
-May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros.atomic`,
+May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros._lazy`, :mod:`reachset_ros.atomic`,
 :mod:`reachset_ros.defaults`, :mod:`reachset_ros.guarantees`, :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
 :mod:`reachset_ros.robot`, :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`,
 :mod:`reachset_ros.synthesis`, :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`,
