@@ -271,6 +271,32 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
     return events
 
 
+def frozen_observable_ns(refs, fault_ns):
+    """The stamp from which a frozen sensor is observable: its joint's first reference after
+    ``fault_ns`` moving faster than :data:`FROZEN_MOTION` (None: no such reference).
+
+    Before it the frozen reading is the truth (the joint rests) or stays within the noise (it
+    creeps), so no sound monitor can tell it from a healthy reading; from it on the monitor's
+    stuck-sensor rule (``stuck_speed``, ``stuck_ticks``) and the sets can. This is the detection
+    limit of the class (``notes/detection-limit.md``: "say for each class what bounds it"); the
+    campaign (its detection window) and the demo (its latency promise) count from here.
+
+    Parameters
+    ----------
+    refs : list of Reference
+        The joint's recorded references (:func:`reachset_ros.bags.read_references`), any order.
+    fault_ns : int
+        The fault's stamp (``/sim/fault_onset``).
+
+    Returns
+    -------
+    int or None
+    """
+    hits = [int(r.stamps[(r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION)][0]) for r in refs
+            if np.any((r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION))]
+    return min(hits) if hits else None
+
+
 def judged_columns(fault, joint, names):
     """Indices into ``names`` of the joints whose recorded readings can show a stop's effect:
     all but the joint of a ``frozen`` sensor fault (its readings hold their last value whatever

@@ -571,9 +571,10 @@ def frozen_before_motion(outcomes):
         refs = read_references([bag], joints=sorted({o.event.joint for o in group}))
         for o in group:
             # the joint's references from the fault to the stop: some recorded, none fast
-            window = [(r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0]) for r in refs.get(o.event.joint, [])]
-            fast = [w & (np.abs(r.qd) > cp.FROZEN_MOTION) for w, r in zip(window, refs.get(o.event.joint, []))]
-            o.stopped_before_motion = any(w.any() for w in window) and not any(f.any() for f in fast)
+            mine = refs.get(o.event.joint, [])
+            recorded = any(np.any((r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0])) for r in mine)
+            seen = cp.frozen_observable_ns(mine, o.fault_ns)
+            o.stopped_before_motion = recorded and (seen is None or seen > o.stops[0][0])
 
 
 def bag_stops(outcomes):
