@@ -43,6 +43,15 @@ ALPHA_W, ALPHA_V = (0.15, 0.0), (4e-4,)
 #: /safe_stop comes from the test or from a monitor that checks no loop of the controller's (the
 #: test drives /observer/estimate, not /joint_states), so no verdict ever covers a tick commanded
 NO_VERDICTS = {"monitor_verdict_ticks": 10**9}
+#: a loop that rides out a loaded machine (CI twice as slow; two test workers): the controller waits
+#: for its reference (``reference_timeout``, default 20 ms) within the simulator's wait for its
+#: command (``lockstep_timeout``), so a starved reference node slows the simulated arm instead of
+#: stopping it. Under ``make test``'s two workers the 20 ms default let the reference fall 204 ms of
+#: stamp time behind (``reference_max_age`` 200 ms: every brake engaged) in a test about braking.
+#: For tests without a monitor; with one, :data:`PATIENT_REFERENCE` beside the demo's 0.3 s lockstep.
+PATIENT_LOOP = {"sim_node": {"lockstep_timeout": 1.0}, "controller_node": {"reference_timeout": 0.5}}
+#: with a monitor (whose missing-data watch is on the wall clock): within the demo's 0.3 s lockstep
+PATIENT_REFERENCE = {"reference_timeout": 0.2}
 #: deep publishers, so that the test itself never drops what it sends
 PUB_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 

@@ -13,7 +13,7 @@ from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, 
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from helpers import JOINTS, NO_VERDICTS, PUB_QOS, Recorder, plant_stream, spin_until, wait_until, write_model
+from helpers import (JOINTS, NO_VERDICTS, PATIENT_LOOP, PATIENT_REFERENCE, PUB_QOS, Recorder, plant_stream, spin_until, wait_until, write_model)
 from reachset_ros import conformance as cf
 from reachset_ros import processes
 from reachset_ros.bags import read_messages
@@ -274,11 +274,12 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
     rec = Recorder("cat1_listener", {"joint_states": JointState, "brake_command": BrakeCommand})
     bag = tmp_path / "stop_bag"
-    procs = [processes.start("sim_node", {"seed": 3, "realistic": True}, tmp_path),
+    procs = [processes.start("sim_node", {"seed": 3, "realistic": True, **PATIENT_LOOP["sim_node"]}, tmp_path),
              processes.start("reference_node", {"seed": 3}, tmp_path),
              processes.start("observer_node", common, tmp_path),
              # the test's /safe_stop, no monitor: no verdicts (helpers.NO_VERDICTS)
-             processes.start("controller_node", dict(common, wait_for_monitor=True, **NO_VERDICTS), tmp_path)]
+             processes.start("controller_node", dict(common, wait_for_monitor=True, **NO_VERDICTS,
+                                                     **PATIENT_LOOP["controller_node"]), tmp_path)]
     recorder = processes.start("recorder_node", {"output": str(bag), "topics": [JOINT_STATES, BRAKE_TOPIC,
                                                                              SAFE_STOP_TOPIC]}, tmp_path)
     try:
@@ -349,11 +350,11 @@ def test_braking_law_brings_the_moving_arm_to_rest_within_the_limits_and_holds_i
     # reader's side of discovery came seconds later)
     stop_pub = ros.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
     stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no safe stop active"))
-    procs = [processes.start("sim_node", {"seed": 2, "realistic": True}, tmp_path),
+    procs = [processes.start("sim_node", {"seed": 2, "realistic": True, **PATIENT_LOOP["sim_node"]}, tmp_path),
              processes.start("reference_node", {"seed": 2}, tmp_path),
              processes.start("observer_node", common, tmp_path),
-             processes.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2, **NO_VERDICTS),
-                             tmp_path)]
+             processes.start("controller_node", dict(common, wait_for_monitor=True, stop_category=2, **NO_VERDICTS,
+                                                     **PATIENT_LOOP["controller_node"]), tmp_path)]
     try:
         js = rec.msgs["joint_states"]
 
@@ -462,7 +463,7 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
              processes.start("sim_node", {"seed": 3, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
              processes.start("reference_node", {"seed": 3}, tmp_path),
              processes.start("observer_node", common, tmp_path),
-             processes.start("controller_node", common, tmp_path)]
+             processes.start("controller_node", dict(common, **PATIENT_REFERENCE), tmp_path)]
     try:
         status = rec.msgs["conformance/status"]
         assert rec.wait(lambda: len(status) > 0 and "recorder_node" in ros.get_node_names(), 90), \
@@ -866,7 +867,7 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
     procs = [processes.start("sim_node", {"seed": 4, "realistic": True, "lockstep_timeout": LOCKSTEP_TIMEOUT}, tmp_path),
              processes.start("reference_node", {"seed": 4}, tmp_path),
              processes.start("observer_node", common, tmp_path),
-             processes.start("controller_node", dict(common, wait_for_monitor=True), tmp_path),
+             processes.start("controller_node", dict(common, wait_for_monitor=True, **PATIENT_REFERENCE), tmp_path),
              processes.start("monitor_node", {"model_file": str(model), "max_missing_ticks": 125,
                                            "window_dir": str(tmp_path / "windows")}, tmp_path)]
     try:
@@ -877,7 +878,8 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
         # issue 34.1: the monitor started with its start-up stop (the controller held the arm at
         # rest, u_p = 0) and released it after k*+1 ticks of the held arm checked conformant
         assert stops and stops[0][1].active and stops[0][1].kind == "not_ready", [m.kind for _, m in stops][:3]
-        assert any(not m.active and m.reason == MONITOR_STARTED for _, m in list(stops))
+        assert any(not m.active and m.reason == MONITOR_STARTED for _, m in list(stops)), \
+            [(m.active, m.kind, m.reason[:120]) for _, m in list(stops)][:6]
         assert not any(m.active and m.kind != "not_ready" for _, m in list(stops)), (
             [m.reason for _, m in stops if m.active and m.kind != "not_ready"][:1], _stale_lines(procs[0]))
         # the simulator waits for the monitor's verdicts (monitor_lockstep_ticks, 5 by default): a
