@@ -50,6 +50,8 @@ ROWS = {
            "to judge",
     "G21": "every tick is classified inside or outside the envelope of the identification data (an empirical "
            "record of where the data were, not a guarantee)",
+    "G22": "online, the monitor says when the data are outside the envelope, and a violation's stop says whether "
+           "they were inside",
 }
 
 

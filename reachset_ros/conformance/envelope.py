@@ -40,8 +40,8 @@ import numpy as np
 from ..errors import ReachsetError
 
 __all__ = ["ACCELERATION_LAG", "FEATURES", "FORMAT", "HISTORY", "VELOCITY_LAG", "Envelope", "EnvelopeTracker",
-           "JointEnvelope", "classify_series", "features", "fit", "from_dict", "held_outside", "inside",
-           "series_features", "summary", "tick_counts", "to_dict"]
+           "JointEnvelope", "OUTSIDE_ENVELOPE", "classify_series", "features", "fit", "from_dict", "held_outside", "inside",
+           "outside_reason", "series_features", "summary", "tick_counts", "to_dict", "violation_note"]
 
 FORMAT = "reachset_ros/envelope/1"
 #: the features of a tick, in this order (module docstring)
@@ -277,6 +277,27 @@ def summary(env):
                                            "ticks are not classified; re-identify to record one"}
     return {"recorded": True, "bins": env.bins, "dilation": env.dilation, "hold": env.hold,
             "grids": [list(g) for g in env.grids], "joints": sorted(env.joints)}
+
+
+#: the monitor node's ``outside_envelope`` values: what it does at a tick outside the envelope
+OUTSIDE_ENVELOPE = ("warn", "stop")
+
+
+def violation_note(outside):
+    """The words a violation's stop reason ends with (issue 37): whether the violating joint's
+    data were inside the validated envelope (``outside`` False), outside it (True) or whether
+    the model records none (None)."""
+    if outside is None:
+        return "; the model records no validated envelope"
+    if outside:
+        return "; the data were OUTSIDE the validated envelope (motion the model was never validated on)"
+    return "; the data were inside the validated envelope (motion of the kind the model was validated on)"
+
+
+def outside_reason(joints, stamp):
+    """The stop reason (``outside_envelope: stop``) or the warning for ``joints`` outside at ``stamp``."""
+    return (f"joint {joints[0]}" + (f" (and {len(joints) - 1} more)" if len(joints) > 1 else "")
+            + f" outside the validated envelope at stamp {stamp} ns: the model was never validated on such motion")
 
 
 class EnvelopeTracker:

@@ -119,3 +119,36 @@ def test_the_model_file_round_trips_the_envelope_and_refuses_a_bad_one(tmp_path)
     d["envelope"]["velocity_lag"] = 2
     with pytest.raises(ReachsetError, match="envelope features/lags are not this version's"):
         mdl.from_dict(d, "m")
+
+
+def test_the_monitor_core_classifies_as_check_and_says_so_in_a_violations_reason(tmp_path):
+    """MonitorCore (the monitor node without ROS) classifies every tick with the tracker, as
+    classify_series does (check), across a gap; a model without an envelope classifies nothing."""
+    from helpers import JOINTS, stream, write_envelope_model
+    from reachset_ros.conformance.monitor_core import MonitorCore
+    from reachset_ros.conformance.watches import TickEvent
+    m = mdl.load(write_envelope_model(tmp_path / "m.yaml"))
+    Y, U = stream(600, seed=5)
+    Y[300:] += np.linspace(0.0, 0.3, 300)[:, None]        # drifts out of the envelope (and violates)
+    stamps = np.arange(600, dtype=np.int64) * 4_000_000
+    stamps[200:] += 80_000_000                            # a gap
+    core = MonitorCore(m)
+    got = {}
+    for i in range(600):
+        for e in core.add_y(int(stamps[i]), JOINTS, Y[i]) + core.add_u(int(stamps[i]), JOINTS, U[i]):
+            if isinstance(e, TickEvent):
+                got[i] = e.outside_envelope
+    assert sorted(got) == list(range(600))
+    online = np.array([got[i] for i in range(600)])
+    for k, j in enumerate(JOINTS):
+        s = JointSeries(name=j, stamps=stamps, y=Y[:, k], u=U[:, k], segments=segments_of(stamps, np.ones(600, bool),
+                                                                                           DT), dt=DT)
+        batch, _ = ev.classify_series(m.envelope, j, s)
+        assert np.array_equal(online[:, k], batch) and batch[:300].sum() < 50 and batch[400:].all()
+    assert core.counters["outside_envelope_ticks"] == int(online.any(axis=1).sum())
+    bare = MonitorCore(mdl.load(write_model(tmp_path / "bare.yaml")))
+    ev_bare = [e for e in bare.add_y(0, JOINTS, Y[0]) + bare.add_u(0, JOINTS, U[0]) if isinstance(e, TickEvent)]
+    assert bare.envelope is None and ev_bare[0].outside_envelope is None
+    assert "OUTSIDE the validated envelope" in ev.violation_note(True)
+    assert "inside the validated envelope" in ev.violation_note(False)
+    assert "records no validated envelope" in ev.violation_note(None)
