@@ -127,9 +127,11 @@ def main():
             wa = max(r, key=lambda n: r[n]["viol_inside"] / max(r[n]["viol"], 1))
             wb = max(r, key=lambda n: r[n]["held_out"] / max(r[n]["held_ticks"], 1))
             s = {k: sum(x[k] for x in r.values()) for k in next(iter(r.values()))}
-            print(f"| {label} | {pct(r[wa]['viol_inside'], r[wa]['viol'])} ({wa}) | "
+            wa_s = f" ({wa})" if r[wa]["viol_inside"] else ""         # the worst joint, when not 0
+            wb_s = f" ({wb})" if r[wb]["held_out"] else ""
+            print(f"| {label} | {pct(r[wa]['viol_inside'], r[wa]['viol'])}{wa_s} | "
                   f"{s['viol_inside']} of {s['viol']} ({pct(s['viol_inside'], s['viol'])}) | "
-                  f"{pct(r[wb]['held_out'], r[wb]['held_ticks'])} ({wb}) | "
+                  f"{pct(r[wb]['held_out'], r[wb]['held_ticks'])}{wb_s} | "
                   f"{s['held_out']} of {s['held_ticks']} ({pct(s['held_out'], s['held_ticks'])}) | {pct(s['run80_out'], s['run80_ticks'])} | "
                   f"{pct(s['fam_out'], s['fam_ticks'])} |")
             if VERBOSE:
