@@ -200,6 +200,10 @@ class IdentifyResult:
                              + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
         if self.validation_data is not None or self.calibration is not None:
             lines.append("model inflation per joint: " + ", ".join(f"{n} {x:g}" for n, x in self.inflations.items()))
+        if self.envelope is not None and self.envelope.get("recorded"):
+            e = self.envelope
+            lines.append(f"validated envelope recorded: grids {', '.join('/'.join(g) for g in e['grids'])}, "
+                         f"{e['bins']} cells per range, dilation {e['dilation']}, hold {e['hold']} ticks")
         return "\n".join(lines) + (f"\nmodel written to {self.model}" if self.model else "")
 
 

@@ -31,6 +31,8 @@ def bags(lwa4p_dir, tmp_path_factory):
 def test_identify_records_the_envelope_in_the_model(bags):
     d, ident = bags
     assert ident["envelope"]["recorded"] is True and ident["envelope"]["hold"] == 125
+    text = cli("identify", d / "fit", "--out", d / "m_text.yaml")
+    assert "validated envelope recorded: grids q/qd, qd/u, 16 cells per range, dilation 1, hold 125 ticks" in text
     assert set(ident["envelope"]["ticks"]) == set(ident["joints"])
     env = yaml.safe_load((d / "m.yaml").read_text())["envelope"]
     assert env["format"] == "reachset_ros/envelope/1" and env["grids"] == [["q", "qd"], ["qd", "u"]]
