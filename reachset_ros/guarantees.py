@@ -48,6 +48,10 @@ ROWS = {
     "G19": "the gains that run are certified for the sets the running monitor checks",
     "G20": "the identification data cover the reference class on every joint, in calibration folds large enough "
            "to judge",
+    "G21": "every tick is classified inside or outside the envelope of the identification data (an empirical "
+           "record of where the data were, not a guarantee)",
+    "G22": "online, the monitor says when the data are outside the envelope, and a violation's stop says whether "
+           "they were inside",
 }
 
 

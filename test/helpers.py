@@ -67,6 +67,27 @@ def write_model(path, alpha_w=ALPHA_W, alpha_v=ALPHA_V, joints=JOINTS, horizon=H
     return Path(path)
 
 
+def write_envelope_model(path, alpha_w=ALPHA_W, seeds=(11, 12, 13), n=3000):
+    """:func:`write_model` with a validated envelope (issue 37) fitted on :func:`stream` of
+    ``seeds`` (each ``n`` ticks, one recording each; hold k*); returns ``Path(path)``."""
+    from dataclasses import replace
+
+    from reachset_ros.bags.series import JointSeries, segments_of
+    from reachset_ros.conformance import envelope
+    write_model(path, alpha_w=alpha_w)
+    m = mdl.load(path)
+    parts = [stream(n, s) for s in seeds]
+    gap = np.full((1, 2), np.nan)
+    Y = np.concatenate([p for Y, _ in parts for p in (Y, gap)])
+    U = np.concatenate([p for _, U in parts for p in (U, gap)])
+    st = np.arange(len(Y), dtype=np.int64) * DT_NS
+    seg = segments_of(st, np.isfinite(Y).all(axis=1), 0.004)
+    series = {j: JointSeries(name=j, stamps=st, y=Y[:, k], u=U[:, k], segments=seg, dt=0.004)
+              for k, j in enumerate(JOINTS)}
+    mdl.save(replace(m, envelope=envelope.fit(series, bins=16, dilation=1, hold=m.horizon)), path)
+    return Path(path)
+
+
 def plant_stream(n, seed=0, fault_from=None):
     """Data that follow the per-joint plant (small bounded disturbances), two joints: yields
     ``(k, y, u)`` per tick; from tick ``fault_from`` on a constant acceleration of 20 rad/s^2

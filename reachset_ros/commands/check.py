@@ -4,6 +4,7 @@ Exit status: 0 conformant, 1 not conformant (so it can gate a CI job), 2 bad inp
 
 ``--workers N`` / ``--scheduler ADDRESS``: one task per bag on Dask (:mod:`reachset_ros.fleet`),
 merged exactly: the same answer to the bit."""
+from ..conformance import envelope
 from ..conformance import model as mdl
 from ..conformance.theorem1 import check, deviation_extremes
 from ..errors import ReachsetError
@@ -52,10 +53,21 @@ def _fleet(args, model, thm, fleet):
     xis = {n: model.checked_xi(n) for n in (names or model.joints)}
     devs = None
     with fleet:
-        checked, report = fl.check(fleet, args.bags, read, sweep, xis)
+        checked, report = fl.check(fleet, args.bags, read, sweep, xis, model.envelope)
         if args.plot:             # a second pass: the envelopes of the deviations
             devs = {n: d for n, d in fl.extremes(fleet, args.bags, read, sweep).devs.items() if n in xis}
-    return {n: joint_result(first, res, report) for n, (res, first) in checked.items()}, report, devs
+    joints = {n: joint_result(first, res, report) for n, (res, first) in checked.items()}
+    for n, (res, _) in checked.items():
+        joints[n].update(res.envelope or envelope.tick_counts(None, n, None, None))
+    return joints, report, devs
+
+
+def _envelope_text(j):
+    """The joint's envelope counts in the text output (nothing without an envelope)."""
+    if j.get("outside_envelope_ticks") is None:
+        return ""
+    return (f"; {j['outside_envelope_ticks']} ticks outside the validated envelope, "
+            f"{j['violations_inside_envelope']} violating ticks inside it")
 
 
 def _seconds(s):
@@ -77,6 +89,7 @@ def _local(args, model, thm, options, p):
         res = check(model.plant, thm, model.estimator, xi, s.y, s.u, s.segments, model.horizon)
         joints[name] = joint_result(s.stamps[res.first_violation_tick] if res.first_violation_tick >= 0 else None,
                                     res, report)
+        joints[name].update(envelope.tick_counts(model.envelope, name, s, res.violating))   # issue 37
     devs = None
     if args.plot:
         p.phase("sweeping the deviations for the plots")
@@ -98,12 +111,13 @@ def run(args):
         else:
             joints, report, devs = _local(args, model, thm, options, p)
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
-              "data": report.as_dict()}
+              "data": report.as_dict(), "envelope": envelope.summary(model.envelope)}
     if args.plot:
         result["plots"] = [plot_deviations(args.plot, name, model, thm, d) for name, d in devs.items()]
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks of {j['test_cases']} test cases"
         + (f", first at {_seconds(j['first_violation_s'])}{j['first_violation_ns']} ns"
-           if j["first_violation_ns"] is not None else "")
-        for n, j in joints.items()))
+           if j["first_violation_ns"] is not None else "") + _envelope_text(j)
+        for n, j in joints.items()) + ("" if model.envelope else "\nno envelope recorded in the model: ticks not "
+                                                                 "classified inside or outside"))
     return 0 if result["conformant"] else 1

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from ..conformance import envelope
 from ..conformance import model as mdl
 from ..conformance.kernels import test_case_starts
 from ..conformance.monitor import JointMonitor, Monitor, MonitorModel
@@ -38,6 +39,37 @@ def segment_breaks(segments):
     return {b for (_, b), (c, _) in zip(segments, segments[1:]) if b == c}
 
 
+class _EnvelopeCount:
+    """The monitor's envelope classification of replayed ticks
+    (:class:`~reachset_ros.conformance.envelope.EnvelopeTracker`), counted per joint as
+    ``check`` counts them (:func:`~reachset_ros.conformance.envelope.tick_counts`)."""
+
+    def __init__(self, env, names):
+        self.tracker = None if env is None or any(n not in env.joints for n in names) else \
+            envelope.EnvelopeTracker(env, names)
+        self.outside, self.inside_viol = np.zeros(len(names), np.int64), np.zeros(len(names), np.int64)
+        self.classified = np.zeros(len(names), np.int64)
+
+    def reset(self):
+        if self.tracker is not None:
+            self.tracker.reset()
+
+    def tick(self, stamp, y, u, violating):
+        if self.tracker is None:
+            return
+        out = self.tracker.tick(stamp, y, u)
+        valid = bool(np.isfinite(y).all() and np.isfinite(u).all())
+        self.classified += valid
+        self.outside += out
+        self.inside_viol += np.asarray(violating, dtype=bool) & ~out
+
+    def counts(self, j):
+        if self.tracker is None:
+            return envelope.tick_counts(None, None, None, None)
+        return {"outside_envelope_ticks": int(self.outside[j]), "violations_inside_envelope": int(self.inside_viol[j]),
+                "classified_ticks": int(self.classified[j])}
+
+
 def replay_joints(model, series, thm=None):
     """Feed the series tick by tick to the online monitor; returns per-joint results, durations.
 
@@ -61,6 +93,7 @@ def replay_joints(model, series, thm=None):
         Y = np.stack([series[n].y for n in group], axis=1)
         U = np.stack([series[n].u for n in group], axis=1)
         viol = np.zeros(len(group), dtype=np.int64)
+        env = _EnvelopeCount(model.envelope, group)             # issue 37: the monitor's classification
         first = [None] * len(group)
         checks = np.zeros(len(group), dtype=np.int64)
         d = np.empty(len(s0.stamps))
@@ -69,12 +102,14 @@ def replay_joints(model, series, thm=None):
             t0 = time.perf_counter()
             if i in cut:
                 mon.reset()
+                env.reset()
             r = mon.tick(int(s0.stamps[i]), Y[i], U[i])
             d[i] = time.perf_counter() - t0
             if isinstance(r, dict):
                 status, checked = r["status"], r["checked"]
             else:
                 status, checked = [r.status], [r.checked]
+            env.tick(int(s0.stamps[i]), Y[i], U[i], [st == "violation" for st in status])
             for j, st in enumerate(status):
                 checks[j] += checked[j]
                 if st == "violation":
@@ -85,7 +120,7 @@ def replay_joints(model, series, thm=None):
         for j, n in enumerate(group):
             starts = test_case_starts(series[n].segments, model.estimator.history)[0]
             out[n] = {"violations": int(viol[j]), "first_violation_ns": first[j],
-                      "test_cases": int(len(starts)), "checks": int(checks[j])}
+                      "test_cases": int(len(starts)), "checks": int(checks[j]), **env.counts(j)}
     return out, durs, together
 
 
@@ -109,7 +144,7 @@ def run(args):
     result = {"conformant": all(j["violations"] == 0 for j in joints.values()), "joints": joints,
               "ticks": ticks, "timing_us_per_tick": {"mean": float(d.mean()), "p99": float(np.percentile(d, 99)),
                                      "max": float(d.max()), "joints_per_tick": len(series) if together else 1},
-              "data": report.as_dict()}
+              "data": report.as_dict(), "envelope": envelope.summary(model.envelope)}
     emit(args, result, ("conformant" if result["conformant"] else "NOT conformant") + "\n" + "\n".join(
         f"{n}: {j['violations']} violating ticks" for n, j in joints.items())
         + f"\n{ticks} ticks, {d.mean():.0f} us mean per tick")

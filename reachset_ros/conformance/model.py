@@ -47,6 +47,7 @@ import yaml
 from .. import guarantees
 from ..atomic import write_yaml
 from ..errors import ReachsetError, first_line
+from . import envelope as _envelope
 from .estimators import Estimator
 from .kernels import minimum_horizon
 from ..systems.plant import LinearPlant, lwa4p_joint_plant
@@ -95,6 +96,7 @@ class ConformanceModel:
     initial_state_set: bool = False      # Theorem 1 with the estimator's error set (theorem1.Theorem1.build)
     input_source: dict = None            # how u_p was computed (input_source_of); None: not recorded (older file)
     calibration: dict = None             # the inflation's calibration record (calibration_record); None: given
+    envelope: object = None              # where the data were (envelope.Envelope, issue 37); None: not recorded
 
     def theorem1(self):
         """The Theorem-1 rows this model's sets were identified for and are checked with
@@ -233,6 +235,7 @@ def to_dict(model: ConformanceModel) -> dict:
         **({"initial_state_set": True} if model.initial_state_set else {}),
         **({"input_source": dict(model.input_source)} if model.input_source is not None else {}),
         **({"calibration": dict(model.calibration)} if model.calibration is not None else {}),
+        **({"envelope": _envelope.to_dict(model.envelope)} if model.envelope is not None else {}),
     }
 
 
@@ -295,7 +298,10 @@ def from_dict(d, source="model") -> ConformanceModel:
                          inflation=inflation, provenance=d.get("provenance", {}) or {}, minimum_horizon=k_min,
                          horizon_below_minimum=below, initial_state_set=iss,
                          input_source=_input_source(d.get("input_source"), source),
-                         calibration=_calibration(d.get("calibration"), source))
+                         calibration=_calibration(d.get("calibration"), source),
+                         envelope=None if d.get("envelope") is None else _envelope.from_dict(d["envelope"], source))
+    if m.envelope is not None and m.envelope.dt != plant.dt:
+        raise ReachsetError(f"{source}: envelope dt {m.envelope.dt:g} is not the plant's {plant.dt:g}")
     require_calibrated_sets(m, source=source)
     if inflation != m.largest_inflation():
         raise ReachsetError(f"{source}: inflation {inflation:g} is not the largest of its joints' own inflations "

@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from ..errors import ReachsetError
+from .envelope import EnvelopeTracker
 from .model import ConformanceModel
 from .monitor import Monitor, MonitorModel
 from .watches import CoverageWatch, FaultEvent, StuckSensorWatch, TickEvent
@@ -96,6 +97,10 @@ class MonitorCore:
         self.set_stuck_rule(stuck_ticks, stuck_speed)
         self._name_map = {}           # topic kind -> (names, index array or None, other names present)
         self._ref_map = None          # /reference names -> (names, index array or None if a joint lacks)
+        #: the validated envelope's online classification (issue 37; None: the model records none for these joints)
+        env = model.envelope
+        self.envelope = EnvelopeTracker(env, self.joints) if env is not None and self.wanted <= set(env.joints) \
+            else None
 
     def set_stuck_rule(self, ticks, speed):
         """The stuck-sensor rule anew (``self.stuck``, fed by :meth:`add_reference`; None: off,
@@ -106,6 +111,8 @@ class MonitorCore:
         """Forget test cases, waiting ticks and stamps (the reset service); keep the counters."""
         self.monitor.reset()
         self.coverage.reset()
+        if self.envelope is not None:
+            self.envelope.reset()
         if self.stuck is not None:
             self.stuck.reset()
         self.ticks_since_reset = 0
@@ -267,7 +274,11 @@ class MonitorCore:
         longest = min(res["longest"].tolist())
         if longest < self.monitor.horizon:
             self.counters["unchecked_ticks" if longest < 0 else "short_ticks"] += 1
-        events = [TickEvent(stamp, res, duration, longest)]
+        outside = None
+        if self.envelope is not None:              # the law replay and check were tested with
+            outside = tuple(bool(x) for x in self.envelope.tick(stamp, y, u))
+            self.counters["outside_envelope_ticks"] += any(outside)
+        events = [TickEvent(stamp, res, duration, longest, outside)]
         fault = self.coverage.update(stamp, longest)
         if fault is not None:
             self.counters["coverage_faults"] += 1

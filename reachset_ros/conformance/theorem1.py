@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -269,6 +269,8 @@ class CheckResult:
     test_cases: int
     checks: int
     worst_margin: float           # min over all checks of (offset - N y_a); < 0 = violated
+    violating: np.ndarray = field(default=None, compare=False, repr=False)   # per tick: some test case outside
+    envelope: dict = field(default=None, compare=False)   # a fleet's envelope.tick_counts of the joint (issue 37)
 
 
 def check_extremes(thm, xi, devs):
@@ -311,5 +313,5 @@ def check(plant, thm, estimator, xi, y, u, segments, horizon):
     M = sweep(plant, estimator, y, u, segments, horizon, visit)
     idx = np.flatnonzero(bad)
     return CheckResult(int(bad.sum()), int(idx[0]) if len(idx) else -1, M, stats["checks"],
-                       stats["margin"])
+                       stats["margin"], violating=bad)
 

@@ -34,6 +34,7 @@ class TickEvent:
     result: dict
     duration: float             # wall time of Monitor.tick, s
     longest: int = -1
+    outside_envelope: tuple = None   # per joint: classified outside the validated envelope; None: no envelope
 
     @property
     def conformant(self):

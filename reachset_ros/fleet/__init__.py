@@ -45,13 +45,14 @@ def extremes(fleet, bags, read: ReadSpec, sweep: SweepSpec, references=False, lo
     return merge_extremes(parts, sweep.estimator.history, sweep.horizon, bags)
 
 
-def check(fleet, bags, read: ReadSpec, sweep: SweepSpec, xis):
+def check(fleet, bags, read: ReadSpec, sweep: SweepSpec, xis, envelope=None):
     """The batch check of all bags against ``xis`` ({name: xi}), one task per bag.
 
-    Returns ``({name: (CheckResult, first violation stamp or None)}, report)``.
+    Returns ``({name: (CheckResult, first violation stamp or None)}, report)``; with
+    ``envelope``, each CheckResult's ``envelope`` holds the joint's tick counts (issue 37).
     """
     _headers(fleet, bags, read)
-    parts = fleet.map(bag_check, list(map(str, bags)), read, sweep, xis, what="check")
+    parts = fleet.map(bag_check, list(map(str, bags)), read, sweep, xis, envelope, what="check")
     return merge_checks(parts, sweep.estimator.history, sweep.horizon, bags)
 
 

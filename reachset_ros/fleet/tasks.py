@@ -21,7 +21,7 @@ sent.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,7 @@ from ..bags import read_estimates, read_references
 from ..bags.messages import header_stamp_ns
 from ..bags import PERIOD_TOLERANCE, ReadReport, merge_reports, read_joint_series
 from ..conformance.coverage import merge_motion, motion_extremes
+from ..conformance.envelope import tick_counts
 from ..conformance.kernels import require_runs
 from ..conformance.model import file_sha256
 from ..conformance.theorem1 import CheckResult, Deviations, check, combine, deviation_extremes
@@ -231,9 +232,12 @@ def bag_extremes(path, read: ReadSpec, sweep: SweepSpec, references=False, loops
                        motion=motion)
 
 
-def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis):
+def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis, envelope=None):
     """Batch-check one bag: per joint of ``xis`` (name -> xi) the :class:`CheckResult` of
-    :func:`~reachset_ros.conformance.check` and the stamp of its first violation (or None)."""
+    :func:`~reachset_ros.conformance.check` and the stamp of its first violation (or None);
+    with ``envelope`` (:class:`~reachset_ros.conformance.envelope.Envelope`), the result's
+    ``envelope`` holds the joint's :func:`~reachset_ros.conformance.envelope.tick_counts` (a
+    segment never spans two bags: the counts add up to the single process')."""
     series, report = read.read(path)
     out = {}
     for name, xi in xis.items():
@@ -241,6 +245,7 @@ def bag_check(path, read: ReadSpec, sweep: SweepSpec, xis):
             raise ReachsetError(f"{path}: joint {name} of the model not found in the bag")
         s = series[name]
         r = check(sweep.plant, sweep.thm, sweep.estimator, xi, s.y, s.u, s.segments, sweep.horizon)
+        r = replace(r, violating=None, envelope=None if envelope is None else tick_counts(envelope, name, s, r.violating))
         out[name] = (r, int(s.stamps[r.first_violation_tick]) if r.first_violation_tick >= 0 else None)
     return BagCheck(str(path), tuple(series), out, {n: len(series[n].stamps) for n in out},
                     {n: max((b - a for a, b in series[n].segments), default=0) for n in out}, report,
@@ -311,7 +316,10 @@ def merge_checks(parts, history, horizon, bags):
                 break
             off += p.ticks[name]
         res = CheckResult(sum(r.violations for r, _ in rs), tick, sum(r.test_cases for r, _ in rs),
-                          sum(r.checks for r, _ in rs), min(r.worst_margin for r, _ in rs))
+                          sum(r.checks for r, _ in rs), min(r.worst_margin for r, _ in rs),
+                          envelope=None if rs[0][0].envelope is None else
+                          {k: None if rs[0][0].envelope[k] is None else sum(r.envelope[k] for r, _ in rs)
+                           for k in rs[0][0].envelope})
         out[name] = (res, first)
     return out, merge_reports([p.report for p in parts])
 

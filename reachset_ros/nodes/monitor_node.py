@@ -51,7 +51,8 @@ from sensor_msgs.msg import JointState
 from reachset_msgs.srv import ResetStop
 from std_srvs.srv import Trigger
 
-from .. import guarantees
+from .. import defaults, guarantees
+from ..conformance import envelope as ev_envelope
 from ..conformance import model as mdl
 from ..bags import BagWriter, joint_state, plant_input
 from ..conformance.monitor_core import TOPIC, MonitorCore
@@ -68,12 +69,22 @@ INPUT_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
 
 
+defaults.register("monitor", {
+    "outside_envelope": ("warn", "what the monitor does at a tick whose data lie outside the model's validated "
+                                 "envelope (issue 37): 'warn' (diagnostics WARN) or 'stop'; the envelope is an "
+                                 "empirical record of where the identification data were, not a guarantee "
+                                 "(docs/theory.md, row G22), so outside is no fault by default"),
+}, owner=__name__)
+
+
 class MonitorNode(Node):
     """ROS adapter of :class:`MonitorCore`."""
 
     #: True in the managed (lifecycle) variant (monitor_lifecycle_node): the model is loaded
     #: on the configure transition and the initial safe-stop state is the variant's
     MANAGED = False
+    #: joints outside the validated envelope at the last tick (issue 37; diagnostics)
+    envelope_outside = ()
 
     def __init__(self):
         super().__init__("monitor_node")
@@ -94,6 +105,12 @@ class MonitorNode(Node):
         self.declare_parameter("stuck_speed", MonitorCore.STUCK_SPEED,
                                desc("stuck-sensor rule: the reference speed, rad/s, at which a joint must move",
                                     1e-6, 100.0))
+        self.declare_parameter("outside_envelope", defaults.get("monitor.outside_envelope"),
+                               desc("what a tick whose data lie outside the model's validated envelope does "
+                                    "(issue 37): 'warn' (diagnostics WARN naming the joints) or 'stop' (a safe "
+                                    "stop of kind outside_envelope); a violation's stop reason says either way "
+                                    "whether the data were inside; a model without an envelope: nothing classified"))
+        self.outside_mode = self._outside_mode(self.get_parameter("outside_envelope").value)
         self.declare_parameter("window_dir", "bags/safe_stop", desc("where offending windows are written"))
         self.declare_parameter("dt", 0.004, desc("tick period, s (the watchdog's timer, read at start-up)", 1e-4, 1.0,
                                                  read_only=True))
@@ -253,10 +270,20 @@ class MonitorNode(Node):
         self.apply(core, model_id, path)
         return True, ""
 
+    def _outside_mode(self, value):
+        """``outside_envelope`` at start-up: a value that is neither warn nor stop stops (fail closed)."""
+        if value not in ev_envelope.OUTSIDE_ENVELOPE:
+            self.get_logger().error(f"outside_envelope must be 'warn' or 'stop', got {value!r}: stopping outside it")
+            return "stop"
+        return value
+
     def on_set_parameters(self, params):
         """Validate the whole request first (on_set): a new model is built, not applied, so a
         refused request leaves the running configuration as it was."""
         new = {p.name: p.value for p in params}
+        if "outside_envelope" in new and new["outside_envelope"] not in ev_envelope.OUTSIDE_ENVELOPE:
+            return SetParametersResult(successful=False, reason=f"outside_envelope must be 'warn' or 'stop', got "
+                                                                f"{new['outside_envelope']!r}")
         if "model_file" in new and not new["model_file"]:
             return SetParametersResult(successful=False, reason="model_file must not be empty")
         staged = None
@@ -276,6 +303,8 @@ class MonitorNode(Node):
         running check's coverage and stuck-sensor rules."""
         staged = self.param_request.take(params)
         new = {p.name: p.value for p in params}
+        if "outside_envelope" in new:
+            self.outside_mode = new["outside_envelope"]
         if "model_file" in new or "joints" in new:
             if staged is not None:
                 self.apply(*staged)
@@ -337,13 +366,19 @@ class MonitorNode(Node):
             self.publish_status(ev)
             self.release_when_ready()
             viol = [j for j, s in enumerate(res["status"]) if s == "violation"]
+            out = ev.outside_envelope
+            self.envelope_outside = () if out is None else tuple(n for n, o in zip(self.core.joints, out) if o)
             if viol:
                 j = viol[0]
                 self.trigger(stamp, "violation",
                              f"joint {self.core.joints[j]} left its reachable set at step k={int(res['step'][j])}: "
-                             f"N y_a = {res['deviation'][j]:.6g} > bound {res['bound'][j]:.6g}",
+                             f"N y_a = {res['deviation'][j]:.6g} > bound {res['bound'][j]:.6g}"
+                             + ev_envelope.violation_note(None if out is None else out[j]),
                              self.core.joints[j], int(res["step"][j]),
                              int(res["start_tick"][j]), float(res["deviation"][j]), float(res["bound"][j]))
+            if self.envelope_outside and self.outside_mode == "stop":
+                self.trigger(stamp, "outside_envelope", ev_envelope.outside_reason(self.envelope_outside, stamp),
+                             self.envelope_outside[0])
 
     def publish_status(self, ev: TickEvent):
         stamp, res = ev.stamp, ev.result
@@ -546,6 +581,10 @@ class MonitorNode(Node):
                           f"k*={self.core.model.horizon} (warm-up or gaps)")
         else:
             st.level, st.message = DiagnosticStatus.OK, "conformant"
+        if st.level == DiagnosticStatus.OK and self.envelope_outside:
+            st.level = DiagnosticStatus.WARN
+            st.message += (f"; joints {', '.join(self.envelope_outside)} outside the validated envelope: the model "
+                           "was never validated on such motion (outside_envelope: warn)")
         counts = collections.Counter(self.counters)
         counts["callback_errors"] = getattr(self, "callback_errors", 0)
         values = {}
@@ -553,7 +592,10 @@ class MonitorNode(Node):
             counts.update(self.core.counters)
             cov = self.core.coverage
             values = {"longest_step": cov.last_longest, "horizon": self.core.model.horizon,
-                      "horizon_coverage": f"{cov.share:.4f}"}
+                      "horizon_coverage": f"{cov.share:.4f}", "outside_envelope": self.outside_mode,
+                      "envelope": "recorded" if self.core.envelope is not None else
+                      "none recorded in the model: ticks not classified",
+                      "outside_envelope_joints": ",".join(self.envelope_outside)}
             if self.core.stuck is not None:     # ticks the stuck-sensor rule had no reference for
                 values["stuck_rule_unreferenced_ticks"] = self.core.stuck.unreferenced
         st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted({**counts, **values}.items())]

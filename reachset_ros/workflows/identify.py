@@ -19,6 +19,7 @@ from .. import defaults
 from .. import fleet as fl
 from ..bags import read_joint_series, segments_of
 from ..bags.messages import JOINT_STATES, PLANT_INPUT
+from ..conformance import envelope
 from ..conformance import model as mdl
 from ..conformance.calibration import cross_validate
 from ..conformance.corollary1 import identify_corollary1
@@ -47,6 +48,17 @@ defaults.register("identify", {
                           "fault 2-5x sooner than the paper's 'linear' ||W||+||V|| at the same held-out "
                           "violations (0) on the real LWA-4P and the simulated arm (docs/performance.md, "
                           "benchmarks/detection_objective.py)"),
+}, owner=__name__)
+
+defaults.register("identify.envelope", {
+    "bins": (16, "cells per feature across the training data's range of the validated envelope "
+                 "(conformance.envelope): on the real LWA-4P 16 left 0 % of the unseen family's violating ticks "
+                 "inside and 0 % of the held-out ticks outside, 32 called 2.5 % of the held-out ticks outside "
+                 "(docs/real-data.md, 'Validated envelope', benchmarks/envelope.py)"),
+    "dilation": (1, "cells added around every occupied cell of the envelope's grids and at both ends of each "
+                    "feature's axis (without: 8.9 % of the held-out ticks outside on the real LWA-4P)"),
+    "grids": ([["q", "qd"], ["qd", "u"]], "the feature pairs with an occupancy grid in the envelope (position and "
+                                          "velocity; velocity and plant input u_p); the hold is k*"),
 }, owner=__name__)
 
 #: inflations tried on validation bags or folds (``--inflation-grid``'s default)
@@ -112,6 +124,7 @@ class IdentifyOptions:
     coverage_threshold: float = field(default_factory=lambda: defaults.get("identify.coverage.threshold"))
     out: Path | None = None
     command: str = ""
+    envelope: bool = True       # record the validated envelope (issue 37; needs the series: not on a fleet)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -140,6 +153,7 @@ class IdentifyResult:
     model: str | None = None
     inflations: dict = field(default_factory=dict)   # per joint, the inflation the model applies
     coverage: dict | None = None
+    envelope: dict | None = None     # {"recorded": bool, ...}: the envelope the model records (issue 37)
 
     def to_json(self):
         """The ``reachset identify --json`` object."""
@@ -155,6 +169,8 @@ class IdentifyResult:
         if self.coverage is not None:
             out["coverage"] = self.coverage
             out["thin_coverage"] = sorted(n for n, c in self.coverage.items() if c["thin"])
+        if self.envelope is not None:
+            out["envelope"] = self.envelope
         return out
 
     def human(self):
@@ -184,6 +200,10 @@ class IdentifyResult:
                              + ("; FLAGGED: some fold is violated at every grid value" if c["flagged"] else "") + ")")
         if self.validation_data is not None or self.calibration is not None:
             lines.append("model inflation per joint: " + ", ".join(f"{n} {x:g}" for n, x in self.inflations.items()))
+        if self.envelope is not None and self.envelope.get("recorded"):
+            e = self.envelope
+            lines.append(f"validated envelope recorded: grids {', '.join('/'.join(g) for g in e['grids'])}, "
+                         f"{e['bins']} cells per range, dilation {e['dilation']}, hold {e['hold']} ticks")
         return "\n".join(lines) + (f"\nmodel written to {self.model}" if self.model else "")
 
 
@@ -431,6 +451,22 @@ def _with_calibration(m, o: IdentifyOptions, *, grid, calib, calibrated):
     return m
 
 
+def _envelope(o: IdentifyOptions, data):
+    """The validated envelope of the identification data (:func:`reachset_ros.conformance.envelope.fit`,
+    hold k*) and its ``--json`` summary (None and ``recorded: false`` when not asked). On a fleet the
+    bags are read here once more (the fleet reduced them to extremes): the same envelope as one process."""
+    if not o.envelope:
+        return None, {"recorded": False, "reason": "not asked for"}
+    series = data.series
+    if series is None:
+        series, _ = read_joint_series([Path(b) for b in o.bags], o.joints, o.dt, o.topics, **(o.reader or {}))
+    env = envelope.fit(series, bins=defaults.get("identify.envelope.bins"),
+                       dilation=defaults.get("identify.envelope.dilation"), hold=o.horizon,
+                       grids=[tuple(g) for g in defaults.get("identify.envelope.grids")])
+    return env, {"recorded": True, "bins": env.bins, "dilation": env.dilation, "hold": env.hold,
+                 "grids": [list(g) for g in env.grids], "ticks": {n: j.ticks for n, j in env.joints.items()}}
+
+
 def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
     """Identify a reachset-conformant model from bags (``reachset identify``).
 
@@ -487,6 +523,7 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
         for name, v in val.items():
             js[name]["validation"] = v
             js[name]["inflation"] = inflations[name]
+    env, env_json = _envelope(o, data)
     model = None
     if o.out is not None:
         prov = _provenance(o, data=data, grid=grid, calib=calib, inflation=inflations)
@@ -494,8 +531,8 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                                  horizon=o.horizon, joints=joints, provenance=prov,
                                  minimum_horizon=k_min, horizon_below_minimum=weak,
                                  initial_state_set=bool(o.initial_state_set),
-                                 input_source=mdl.input_source_of((o.reader or {}).get("effort"))
-                                 ).with_inflation(inflations)
+                                 input_source=mdl.input_source_of((o.reader or {}).get("effort")),
+                                 envelope=env).with_inflation(inflations)
         mdl.save(_with_calibration(m, o, grid=grid, calib=calib, calibrated=calibrated), o.out)
         model = str(o.out)
     return IdentifyResult(inflation=max(inflations.values()), inflations=inflations, joints=js, model_sets=joints, data=data.report.as_dict(), cost=o.cost,
@@ -503,4 +540,4 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
                           initial_state_set=bool(o.initial_state_set), calibrate=o.calibrate,
                           calibrated_inflation=calibrated, calibration=calib,
                           validation_data=None if vseries is None else vreport.as_dict(), model=model,
-                          coverage=cov)
+                          coverage=cov, envelope=env_json)
