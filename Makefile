@@ -41,18 +41,19 @@ $(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/conformance/_tick.c
 
 venv: $(VENV)/.pkg
 
-# the pure tests on PURE_JOBS processes (pytest-xdist; they share nothing but the CPU), then the
-# DDS tests one at a time (each module's nodes in the session's own domain); both always run
-PURE_JOBS ?= 2
+# every test: the pure tests on TEST_JOBS processes (pytest-xdist; they share nothing but the CPU),
+# then the DDS tests on TEST_JOBS processes, each worker's nodes in a DDS domain of its own
+# (test/conftest.py); both phases always run. Times: README, "Tests".
+TEST_JOBS ?= 2
 test: venv
 	@rc=0; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(PURE_JOBS) || rc=$$?; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m dds || rc=$$?; \
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(TEST_JOBS) --dist worksteal || rc=$$?; \
+	$(PY) -m pytest $(PYTEST_ARGS) -m dds -n $(TEST_JOBS) --dist worksteal || rc=$$?; \
 	exit $$rc
 
-# the pure tests only (no DDS participant, no node process): the core, the command line, bags
+# the quick pure tests (about two minutes): no DDS participant, no node process, none marked slow
 test-pure: venv
-	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(PURE_JOBS)
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds and not slow" -n $(TEST_JOBS) --dist worksteal
 
 # the demo picks a fresh ROS_DOMAIN_ID (reachset_ros/domain.py) and prints it first: a second
 # `make demo` on the machine runs beside it undisturbed

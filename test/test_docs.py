@@ -9,6 +9,8 @@ import ast
 import re
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 REF = re.compile(r"(test/[\w/]+\.py)?((?:::\w+)+)|(test/[\w/]+\.py)")
 
@@ -42,6 +44,7 @@ def references(text: str):
                 yield n, current, m.group(2)[2:]
 
 
+@pytest.mark.slow
 def test_every_test_named_in_the_docs_exists():
     docs = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
     missing, seen = [], 0

@@ -64,6 +64,7 @@ def assert_same(got, want):
     assert got[2].view(np.uint64).tolist() == want[2].view(np.uint64).tolist()
 
 
+@pytest.mark.slow
 @settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages())
 def test_decoder_equals_rosbags_deserialize_cdr(batch):
@@ -73,6 +74,7 @@ def test_decoder_equals_rosbags_deserialize_cdr(batch):
         assert_same(g, rosbags_decode(raw, msgtype, field))
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages(), st.data())
 def test_decoder_rejects_exactly_what_rosbags_rejects(batch, data):
@@ -249,6 +251,7 @@ def test_reader_equals_rosbags_on_messy_bags(tmp_path, kind, rosbags_reads):
 
 @pytest.mark.parametrize("compression,index", [("NONE", "ALL"), ("LZ4", "ALL"), ("ZSTD", "ALL"),
                                                ("ZSTD", "CHUNK"), ("NONE", "NONE")])
+@pytest.mark.slow
 def test_reader_equals_rosbags_on_many_chunk_mcap(tmp_path, compression, index, rosbags_reads):
     """Many small chunks, overlapping in log time: the order (hence duplicates kept and
     out-of-order counts) is exactly rosbags'. Without message indexes the chunks are
@@ -268,6 +271,7 @@ def test_reader_equals_rosbags_on_many_chunk_mcap(tmp_path, compression, index, 
 
 @pytest.mark.parametrize("kind", ["mcap", "sqlite3", "mcap-zstd-chunks", "message-compressed", "mcap-lib-no-repeat",
                                   "mcap-lib-unindexed"])
+@pytest.mark.slow
 def test_several_arrays_of_a_topic_in_one_pass_equal_rosbags(tmp_path, kind):
     """Issue 15.3: ``--input effort`` reads position, velocity and effort of one JointState
     topic in one pass (read_fields); each equals rosbags' message-by-message decoding, on
@@ -469,6 +473,7 @@ def damage(tmp_path, case):
 
 @pytest.mark.parametrize("case", ["truncated_mcap", "garbage_metadata", "incomplete_metadata", "not_a_bag",
                                   "no_plant_input", "no_plant_input_sqlite3"])
+@pytest.mark.slow
 def test_cli_damaged_bag_exit_2_one_line_naming_it(tmp_path, case):
     path, words = damage(tmp_path, case)
     out = tmp_path / "model.yaml"
@@ -516,6 +521,7 @@ def _segments_loop(stamps, valid, dt):
     return tuple(segs)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from([0, 1, 2, 4, 4, 4, 5, 6, 9]), st.booleans()), max_size=40))
 def test_vectorised_segments_equal_the_loop(ticks):

@@ -24,6 +24,7 @@ def test_analyze_json_defaults_hg_static():
     assert res["params"]["observer"] == "hg" and res["params"]["omega"] == 24.4
 
 
+@pytest.mark.slow
 def test_analyze_eso_and_options_change_the_result():
     a = json.loads(_run("--json", "--observer", "eso").stdout)
     b = json.loads(_run("--json", "--observer", "eso", "--l1", "57.1", "--l2", "103.3", "--l3", "18.1",
@@ -37,6 +38,7 @@ def test_analyze_eso_and_options_change_the_result():
     assert c["re_norm"] == pytest.approx(2 * d["re_norm"], rel=1e-9)  # linear in alpha
 
 
+@pytest.mark.slow
 def test_analyze_unstable_exits_1_with_a_one_line_reason():
     """Issue 36.6: an unstable loop exited 0 (a script could not tell it from a stable one).
     Now exit 1, the result still printed, one line on stderr saying why."""
@@ -62,6 +64,7 @@ def test_analyze_human_output():
     (("--observer", "eso", "--l3", "nan"), "l3"),
     (("--dt", "-0.004"), "dt"),
 ])
+@pytest.mark.slow
 def test_analyze_bad_input_exits_2_with_one_line(args, word):
     out = _run("--json", *args)
     assert out.returncode == 2

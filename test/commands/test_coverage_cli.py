@@ -28,6 +28,7 @@ def excited_bag(tmp_path_factory):
     return sr.write_recordings(tmp_path_factory.mktemp("cov") / "excited", recs, estimate=False)
 
 
+@pytest.mark.slow
 def test_identify_reports_the_class_coverage_per_joint_and_warns_for_the_thin_ones(excited_bag, capsys):
     """Before, nothing told that a joint's data never moved near the class' limits (the fault
     campaign trained arm_2 at 0.18 rad/s of 0.7 and then stopped on fault-free motion)."""

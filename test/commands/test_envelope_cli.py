@@ -28,6 +28,7 @@ def bags(lwa4p_dir, tmp_path_factory):
     return d, ident
 
 
+@pytest.mark.slow
 def test_identify_records_the_envelope_in_the_model(bags):
     d, ident = bags
     assert ident["envelope"]["recorded"] is True and ident["envelope"]["hold"] == 125

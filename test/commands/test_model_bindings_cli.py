@@ -46,6 +46,7 @@ def calibrated(two_bags):
     return ident, synth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cmd", ["check", "replay"])
 def test_a_model_without_input_source_is_refused_until_bound(cmd, two_bags, calibrated, tmp_path, capsys):
     """34.10: a model file that does not say how its u_p was computed (written before the
@@ -126,6 +127,7 @@ def test_calibrate_model_calibrates_the_synthesis_sets_by_their_own_rule(two_bag
     assert json.dumps(held.model.calibration)             # plain values: the YAML file takes it
 
 
+@pytest.mark.slow
 def test_synthesize_calibrate_records_the_inflation_of_its_own_sets(two_bags, calibrated, tmp_path, capsys):
     """``synthesize --calibrate K`` writes the synthesised sets with the inflation calibrated on
     them (the record binds them: check and replay take the model) and says whether R*_u was

@@ -208,6 +208,7 @@ def test_the_certificate_of_a_joint_uses_its_own_inflation(tmp_path):
     assert why.startswith(f"joint {B}: reachable input R*_u")
 
 
+@pytest.mark.slow
 def test_identify_calibrate_stores_each_joints_own_value(tmp_path, capsys):
     """``identify --calibrate 2 --inflation-rule per-joint``: joint B's second run is disturbed 1.6 times harder than its
     first, joint A's runs alike, so the folds need more on B than on A. Each joint's block

@@ -80,6 +80,7 @@ def bag_and_model(tmp_path_factory):
     return bag, model
 
 
+@pytest.mark.slow
 def test_check_shows_progress_at_a_terminal_only(bag_and_model):
     """The old check said nothing for the minute a large bag takes; now at a terminal it says
     which phase runs, and stays exactly as quiet as before in a pipe or with --json."""

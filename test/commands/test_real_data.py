@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 
 from reachset_ros.workflows.identify import DEFAULT_GRID
@@ -24,6 +25,7 @@ def cli(*args):
     return res
 
 
+@pytest.mark.slow
 def test_calibrated_model_from_the_training_runs_is_conformant_on_the_held_out_runs(lwa4p_dir, tmp_path):
     """Issue 15 check: ``identify --calibrate 5`` on the 75 training runs (imported with the
     nominal model fitted on them alone); 0 held-out violating ticks on all six joints, the
@@ -60,6 +62,7 @@ def test_calibrated_model_from_the_training_runs_is_conformant_on_the_held_out_r
     assert train["conformant"] and all(j["violations"] == 0 for j in train["joints"].values())
 
 
+@pytest.mark.slow
 def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_needs(lwa4p_dir, tmp_path):
     """``--calibrate K`` recomputed independently, with separate bags instead of segment
     subsets: run i (stamp order) is in fold i mod K; for each fold, sets identified on a bag
@@ -144,6 +147,7 @@ def test_held_out_runs_are_the_protocols(lwa4p_dir):
     assert len(lwa4p.parse_runs("train")) == 75 and len(lwa4p.parse_runs("heldout")) == 25
 
 
+@pytest.mark.slow
 def test_calibrated_simulator_gives_sets_like_the_real_robots_on_held_out_runs(lwa4p_dir, tmp_path):
     """Issue 16.2: SimConfig.calibrated (fitted on the training runs by benchmarks/calibrate_sim.py)
     driven along the 25 held-out runs' own trajectories gives sets (Theorem 1, k* = 125, fd)

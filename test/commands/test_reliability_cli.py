@@ -388,6 +388,7 @@ def test_debug_shows_the_traceback_subprocess(tmp_path, data):
 SMALL_SEARCH = {"sobol_log2": 4, "local_starts": 2, "local_maxfev": 40}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["u_ff_exceeds_u_p", "r_u_radius", "reidentify_fixed_controller"])
 def test_infeasible_synthesis_names_the_binding_constraint(case, tmp_path, clean_bag, capsys):
     """Exit 2, one line naming the joint and the constraint that binds, no file written.

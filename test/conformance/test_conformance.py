@@ -221,6 +221,7 @@ def fault_check_equals_replay(tmp_path, y, u, names, model):
         assert chk["joints"][names[0]][k] == rep["joints"][names[0]][k], k
 
 
+@pytest.mark.slow
 def test_cli_identify_check_replay_and_messy_bags(tmp_path, lwa_data):
     p, y1, u1 = lwa_data
     y2, u2 = simulate(p, 6000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=4)

@@ -104,6 +104,7 @@ def test_observer_estimator_file_round_trip_and_bad_files():
             Estimator.from_dict(bad)
 
 
+@pytest.mark.slow
 def test_cli_identify_with_the_observer_estimator_then_check_equals_replay(tmp_path):
     p = lwa4p_joint_plant()
     y, u = simulate(p, 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)

@@ -197,6 +197,7 @@ def test_validation_picks_inflation_and_detects_fault(held_out):
     assert flagged and chosen == 0.01
 
 
+@pytest.mark.slow
 def test_cli_cost_method_validate(tmp_path, held_out):
     p, yt, ut, yv, uv = held_out
     names = ["arm_1_joint", "arm_2_joint"]

@@ -46,6 +46,7 @@ def test_error_maps_of_fd_and_estimators_without_them():
             cf.Theorem1.build(p, 5, est)
 
 
+@pytest.mark.slow
 def test_cli_identify_check_replay_with_the_initial_state_set(tmp_path):
     p = lwa4p_joint_plant()
     y, u = simulate(p, 3000, AW, AV, seed=6)
@@ -87,6 +88,7 @@ def test_synthesis_with_the_initial_state_set_is_much_tighter():
     assert out["set"].re_norm <= 0.8 * out["paper"].re_norm
 
 
+@pytest.mark.slow
 def test_default_synthesis_beats_the_papers_parametrisation_and_its_loop_stays_inside(tmp_path):
     """Issue 16.1 check: ``reachset synthesize BAG`` (the default: omega, zeta free, h1 = 15,
     h2 = 30, Theorem 1 with the initial-state set) against the paper's parametrisation on the

@@ -116,6 +116,7 @@ def test_per_bag_parts_merge_to_the_whole_sweep(fleet_bags, tmp_path):
 
 
 # ------------------------------------------------------------------ the three modes, to the bit
+@pytest.mark.slow
 def test_identify_and_check_are_bit_identical_in_the_three_modes(fleet_bags, scheduler, capsys, tmp_path):
     """Issue 18 check: single process, ``--workers 2`` and ``--scheduler`` (a separate
     LocalCluster of two workers; the bags fall to the workers as they finish) give the same model file (provenance
@@ -156,6 +157,7 @@ def test_identify_and_check_are_bit_identical_in_the_three_modes(fleet_bags, sch
         assert checks[name] == checks["single"], name
 
 
+@pytest.mark.slow
 def test_synthesize_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
     """``synthesize --workers 2``: the same model (sets, gains, R_e, R_u, the recorded
     references' bound) as one process; ``--plot`` needs the series and is refused."""
@@ -173,6 +175,7 @@ def test_synthesize_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
     assert "--plot needs the whole series in one process" in r.err and len(r.err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_reidentify_with_the_recorded_loop_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
     """``synthesize --mode reidentify --workers 2``: the bags' recorded loop (estimates,
     references, the kept gains' replay) is reduced per bag on the workers and merged exactly:
@@ -192,6 +195,7 @@ def test_reidentify_with_the_recorded_loop_is_bit_identical_with_workers(fleet_b
 
 
 # ------------------------------------------------------------------ refusals
+@pytest.mark.slow
 def test_bags_that_disagree_are_refused_before_any_sweep(fleet_bags, capsys, tmp_path):
     """Different joints, or a different sampling period: exit 2 with one line naming the bag,
     after the header pass and before any sweep task; no model file."""

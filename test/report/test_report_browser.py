@@ -35,6 +35,7 @@ def _chromium(tmp_path, *args):
                           timeout=600)
 
 
+@pytest.mark.slow
 def test_the_rendered_page_is_not_blank(report, tmp_path):
     from matplotlib.image import imread
     shot = tmp_path / "report.png"

@@ -107,6 +107,7 @@ def test_effort_route_equals_import_lwa4p_route(lwa_bags):
     assert rep.unpaired[model.joint_names[0]] == len(RUNS) and rep.invalid_samples[model.joint_names[0]] == 0
 
 
+@pytest.mark.slow
 def test_effort_route_on_dask_workers_is_the_same_to_the_bit(lwa_bags, tmp_path):
     """Issue 18 with ``--input effort``: the workers rebuild the robot model from the URDF and
     parameters and compute u_p themselves; the sets are the one-process ones to the bit."""
@@ -139,6 +140,7 @@ def test_effort_plant_input_is_eq6_inverted(lwa_bags):
     assert np.all(np.isnan(U2[5])) and np.all(np.isfinite(np.delete(U2, 5, axis=0)))
 
 
+@pytest.mark.slow
 def test_effort_route_check_and_replay_agree(lwa_bags, tmp_path):
     d, _, _ = lwa_bags
     eff = ["--input", "effort", "--robot", DEFAULT_URDF, "--nominal", NOMINAL]
@@ -152,6 +154,7 @@ def test_effort_route_check_and_replay_agree(lwa_bags, tmp_path):
         assert j["violations"] == r["joints"][n]["violations"] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cmd", ["check", "replay"])
 def test_a_model_identified_from_effort_refuses_u_p_computed_otherwise(cmd, lwa_bags, tmp_path):
     """Issue 34.10: the model records how u_p was computed (from effort with this URDF and
@@ -188,6 +191,7 @@ def test_effort_route_errors(lwa_bags, tmp_path):
     assert "extra_joint" in line and "/joint_states" in line
 
 
+@pytest.mark.slow
 def test_period_measured_from_stamps_and_mismatch_refused(tmp_path):
     """Issue 15.4: the period is measured, not assumed; a 10 ms bag checked at dt = 4 ms is
     refused naming the measured period; with --dt 0.01 it is read."""
@@ -200,6 +204,7 @@ def test_period_measured_from_stamps_and_mismatch_refused(tmp_path):
         bags.read_joint_series([p], dt=0.004)
 
 
+@pytest.mark.slow
 def test_joint_names_for_messages_without_names(tmp_path):
     """Issue 15.4: JointState messages with an empty name[] are refused (not dropped) unless
     --joint-names maps them; mapped, they give the same model as the named bag."""
@@ -213,6 +218,7 @@ def test_joint_names_for_messages_without_names(tmp_path):
     assert "--joint-names gives 3 names" in cli("identify", unnamed, "--joint-names", "a,b,c", code=2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("storage,suffix", [("mcap", ".mcap"), ("sqlite3", ".db3")])
 def test_bare_storage_file_is_a_bag(tmp_path, storage, suffix):
     """Issue 15.4: a bare .mcap / .db3 file is accepted as `ros2 bag` accepts it, and read

@@ -154,6 +154,7 @@ def refit(lwa4p_dir):
     return fit, read
 
 
+@pytest.mark.slow
 def test_shipped_nominal_is_what_its_command_produces(refit):
     fit, read = refit
     # the protocol: no held-out run (divisible by 4) is ever read by the fit

@@ -38,6 +38,7 @@ def panda(tmp_path_factory):
     return d, sim, fault
 
 
+@pytest.mark.slow
 def test_simulated_panda_is_recorded_as_a_ros2_control_arm(panda):
     d, sim, _ = panda
     topics = {t for t, _, _ in bags.read_messages([d / "train"])}
@@ -52,6 +53,7 @@ def test_simulated_panda_is_recorded_as_a_ros2_control_arm(panda):
     assert max(sim["max_tracking_error_rad"].values()) < 0.2                      # it tracks
 
 
+@pytest.mark.slow
 def test_panda_identify_check_and_a_fault_through_the_effort_path(panda):
     d, _, fault = panda
     ins = cli("inspect", d / "train", "--robot", ROBOT, "--json")

@@ -19,6 +19,7 @@ def model():
     return dt.identify_model(dt.training_series(SETUP, seeds=(1, 2, 3), seconds=10.0), inflation=2.0)
 
 
+@pytest.mark.slow
 def test_a_fault_far_above_the_minimum_is_stopped_within_100_ms_and_far_below_is_not(model):
     big = [dt.run_case(model, SETUP, fault="acceleration", joint="arm_2_joint", magnitude=60.0, seed=s)
            for s in SEEDS]
@@ -39,6 +40,7 @@ def test_fault_free_runs_of_the_same_set_up_do_not_stop(model):
     assert none.stop_ns is None and none.false_stops == 0
 
 
+@pytest.mark.slow
 def test_the_bisection_brackets_the_boundary_and_is_deterministic_for_a_seed(model):
     r = dt.minimum_detectable(model, SETUP, fault="acceleration", joint="arm_2_joint", seeds=SEEDS[:1], hi=60.0,
                               rel_tol=0.1)
@@ -92,6 +94,7 @@ def test_limits_per_class():
     assert all(lim["torque"][n] > 0 for n in names)
 
 
+@pytest.mark.slow
 def test_the_sets_own_limit_scales_with_the_inflation(model):
     """Theorem 1's bound over the fault's noise-free effect: zero-centred sets scale with
     (1 + inflation), and the acceleration's first effect is dt^2/2 at step 2 (one sample of

@@ -88,6 +88,7 @@ def test_reidentify_keeps_the_recorded_tracking_error_inside_r_e(recording):
     assert other.loop_rows is None and other.polytope is pb.polytope
 
 
+@pytest.mark.slow
 def test_cli_reidentify_reports_the_recorded_loop(recording, tmp_path):
     """``synthesize --mode reidentify`` on a bag recorded with the model's gains: the recorded
     loop is verified, constrains the sets and lies inside R*_e; a model with other gains is
@@ -108,6 +109,7 @@ def test_cli_reidentify_reports_the_recorded_loop(recording, tmp_path):
     assert out["same"]["conformant"] and out["same"]["ru_inside_up"]
 
 
+@pytest.mark.slow
 def test_bags_with_overlapping_stamps_give_the_fleets_recorded_loop(recording, tmp_path):
     """Issue 34.12: two bags recorded at the same stamps (two runs of the same gains). One
     process paired each measurement with whichever bag's estimate and reference had its stamp;
@@ -166,6 +168,7 @@ def test_iterate_keeps_its_own_recorded_loop_inside_r_e_or_refuses(recording, tm
         sy.iterate(lambda gains: data, data[:2], _fixed_space(), iterations=1, u_max=100.0, reference_method=2)
 
 
+@pytest.mark.slow
 def test_cli_worker_and_node_refuse_a_reidentification_whose_recorded_loop_leaves_r_e(recording, tmp_path):
     """Issue 34.5: with reference method 2 the recorded loop's rows are not in the problem; the
     re-identified R*_e then misses the loop its own bag recorded. ``synthesize --mode

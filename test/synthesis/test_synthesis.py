@@ -126,6 +126,7 @@ def test_shipped_config_equals_the_builtin_defaults():
 
 
 # ------------------------------------------------------------------ combined vs separate
+@pytest.mark.slow
 def test_combined_is_never_worse_than_separate_and_both_are_conformant_and_inside_up(hg_results, problems):
     for pb in problems:
         r = hg_results[pb.name]
@@ -182,6 +183,7 @@ def test_returned_gains_in_closed_loop_never_leave_re_or_ru(hg_results, problems
             assert np.all(sim["u"][:, 0] >= r.ru[0]) and np.all(sim["u"][:, 0] <= r.ru[1])
 
 
+@pytest.mark.slow
 def test_infeasible_input_limit_names_the_binding_constraint(problems):
     space = sy.SearchSpace.from_config(sy.load_config(), "hg")
     pb = problems[0]
@@ -211,6 +213,7 @@ def test_lqg_moves_like_the_papers_table_iv(hg_results):
         assert hg_results[n].re_norm < min(feasible)               # ours beats every feasible LQG
 
 
+@pytest.mark.slow
 def test_eso_combined_beats_separate(problems):
     space = sy.SearchSpace.from_config(sy.load_config(), "eso")
     assert space.free == ("l1", "l2", "l3") and space.controller == "compensated"
@@ -274,6 +277,7 @@ def test_iterative_procedure_keeps_the_better_iteration():
     assert hist[-1]["results"]["j"].params["omega"] == first.params["omega"]
 
 
+@pytest.mark.slow
 def test_iterative_procedure_with_the_projects_simulated_arm():
     """One iteration with the nonlinear simulated LWA-4P (model error, friction, delays) driven
     by the nodes' control law; references recorded, so method 3 is active."""
@@ -293,6 +297,7 @@ def test_iterative_procedure_with_the_projects_simulated_arm():
 
 
 # ------------------------------------------------------------------ command line
+@pytest.mark.slow
 def test_cli_synthesize_json_out_plots_and_check(bag, small_config, tmp_path, capsys):
     out = tmp_path / "gains.yaml"
     plots = tmp_path / "plots"
@@ -481,6 +486,7 @@ def test_cli_synthesize_with_a_reference_class(bag_without_reference, small_conf
     assert json.loads(so)["joints"][JOINTS[0]]["reference_error"]["source"].startswith("reference class")
 
 
+@pytest.mark.slow
 def test_cli_synthesize_with_inflation_certifies_the_monitored_sets(bag, small_config, tmp_path, capsys):
     """``synthesize --inflation F``: gains whose R*_u stays inside U_p for the sets the monitor
     checks (W, V scaled by 1 + F), recorded in the model; the synthesis without it is certified

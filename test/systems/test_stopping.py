@@ -126,6 +126,7 @@ FAULTS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(FAULTS))
 def test_category_1_stop_brings_every_joint_to_rest_for_every_fault_kind(name):
     """After the stop every joint is at rest (|qd| < 0.01 rad/s to the end) within

@@ -58,6 +58,7 @@ def _without_timings(d):
     return d
 
 
+@pytest.mark.slow
 def test_synthesis_result_and_worker_are_the_commands_json(bag, config, tmp_path):
     res = synthesize([bag], SynthesisOptions(joints=[JOINT], horizon=40, config=str(config)))
     want = _without_timings(cli("synthesize", bag, "--joints", JOINT, "--horizon", 40, "--config", config, "--json"))
