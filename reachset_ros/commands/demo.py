@@ -270,7 +270,9 @@ def summarize(res, record, workdir):
         "search_box": res.get("search_box"), "inflation_calibration": res.get("inflation_calibration"),
         "bringup": res.get("bringup"),      # the parameter file and the `reachset up` command (issue 36.1)
     }
-    out["fault_kind"], fault_joint = fault_of(res.get("fault"))
+    injected = res.get("fault_injected")      # what the demo injected; else the onset's description
+    out["fault_kind"], fault_joint = ((injected["kind"], injected["joint"]) if injected
+                                      else fault_of(res.get("fault")))
     out["stop_effect"] = (stop_effect(record, stop_ns, fault=(out["fault_kind"], fault_joint))
                           if stop_ns is not None else None)
     out.update(frozen_window(record, (out["fault_kind"], fault_joint), fault_ns, stop_ns))

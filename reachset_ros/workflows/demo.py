@@ -282,6 +282,7 @@ class _Story:
                 out["early_stop"] = {"reason": early[0].reason, "stamp_ns": stamp_ns(early[0].header.stamp)}
             kind, joint, mag = fault
             cmd.inject_fault(kind, joint=joint, magnitude=mag)
+            out["fault_injected"] = {"kind": kind, "joint": joint, "magnitude": float(mag)}
             cmd.wait_for_onset(2.0)
             self.timed("monitored after the fault", duration, since=t0)
         else:

@@ -51,6 +51,7 @@ def test_demo_detects_the_fault_and_agrees_with_check(tmp_path):
     assert "<section id='joint-arm_1_joint'" in page or 'id="joint-arm_1_joint"' in page, page[:500]
     fault, stop = res["fault_injected_ns"], res["safe_stop_ns"]
     assert fault is not None and stop is not None
+    assert res["fault_kind"] == "acceleration"      # what the demo injected, not parsed from a log line
     assert res["failures"] == [] and res["early_stop"] is None
     # the stop held the arm (issue 19.1), judged from the bag: every joint at rest within the
     # stated time and travel (before: joint 1 ran away under the 30 rad/s^2 fault, 486 rad)
