@@ -14,6 +14,7 @@ May import: nothing of reachset_ros.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import sys
 
 __all__ = ["attach"]
@@ -40,15 +41,18 @@ def attach(package: str, exports: dict[str, list[str]]):
     Notes
     -----
     A name is imported once and then stored in the package's namespace, so later lookups do
-    not come back here. A name that is not exported raises AttributeError as usual.
+    not come back here. A submodule's name gives the submodule (imported then), as it did when
+    the package imported every submodule at once. Any other name raises AttributeError.
     """
     where = {name: module for module, names in exports.items() for name in names}
 
     def __getattr__(name):
-        try:
-            module = where[name]
-        except KeyError:
-            raise AttributeError(f"module {package!r} has no attribute {name!r}") from None
+        module = where.get(name)
+        if module is None:
+            # a submodule asked for as an attribute (``bags.topics``), as an eager package had it
+            if importlib.util.find_spec(f"{package}.{name}") is None:
+                raise AttributeError(f"module {package!r} has no attribute {name!r}")
+            return importlib.import_module(f"{package}.{name}")
         value = getattr(importlib.import_module(module, package), name)
         setattr(sys.modules[package], name, value)
         return value

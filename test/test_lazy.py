@@ -46,6 +46,15 @@ def test_every_exported_name_resolves_and_none_is_shadowed_by_a_submodule(packag
         getattr(pkg, "not_a_name")
 
 
+def test_a_submodule_is_an_attribute_of_its_package_in_a_fresh_interpreter():
+    """``bags.topics`` with only ``reachset_ros.bags`` imported: test/bags, run alone, failed
+    with "module 'reachset_ros.bags' has no attribute 'topics'" once the package was lazy (the
+    whole suite passed because another test had imported the submodule first)."""
+    mods = imported_after("import reachset_ros.bags as b\nassert b.topics.read_topics\n"
+                          "import reachset_ros.conformance as c\nassert c.envelope.Envelope")
+    assert "reachset_ros.bags.topics" in mods
+
+
 def test_one_name_of_a_package_imports_its_submodule_only():
     mods = imported_after("from reachset_ros.bags import JOINT_STATES")
     assert "reachset_ros.bags.messages" in mods
