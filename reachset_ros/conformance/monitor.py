@@ -186,7 +186,7 @@ class JointMonitor:
                         break                     # fail closed: a NaN margin is no margin
             margin, col, dev, bound = worst
             res = TickResult(margin >= 0, "ok" if margin >= 0 else "violation", self.X.shape[1], margin,
-                             int(self.ages[col]), int(self.starts[col]), dev, bound, use)
+                             int(self.ages[col]), int(self.starts[col]), dev, bound, use=use)
             if status == "gap_reset" and res.status == "ok":
                 res.status = "gap_reset"
             self.X = advance(p, self.X, U)
