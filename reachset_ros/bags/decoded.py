@@ -21,7 +21,11 @@ from .messages import header_stamp_ns, typestore
 from .topics import check_bag
 
 
-def _own_typestore(conn, ts, cache={}):   # noqa: B006 (a cache shared by the calls)
+#: (message type, the bag's definition text) -> the typestore to decode it with (None: ours)
+_OWN_TYPESTORES = {}
+
+
+def _own_typestore(conn, ts):
     """``ts``, or, for a connection whose bag defines its ``reachset_msgs`` type otherwise (a bag
     recorded before a field was added, e.g. ConformanceStatus.set_use of issue 36.3), a typestore
     with the bag's own definition (its messages then lack the new field)."""
@@ -31,19 +35,20 @@ def _own_typestore(conn, ts, cache={}):   # noqa: B006 (a cache shared by the ca
             or not data.strip():
         return ts
     key = (conn.msgtype, data)
+    cache = _OWN_TYPESTORES
     if key not in cache:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
         try:
             types = get_types_from_msg(data, conn.msgtype)
             if types[conn.msgtype] == ts.fielddefs.get(conn.msgtype):
-                cache[key] = ts
+                cache[key] = None
             else:
                 own = get_typestore(Stores.ROS2_JAZZY)
                 own.register(types)
                 cache[key] = own
         except Exception:  # noqa: BLE001 (a definition rosbags cannot parse: decode with ours)
-            cache[key] = ts
-    return cache[key]
+            cache[key] = None
+    return ts if cache[key] is None else cache[key]
 
 
 def _decoded(reader, conns, ts, path=""):
