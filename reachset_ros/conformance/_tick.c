@@ -101,6 +101,13 @@ static int64_t argmin(const double *v, int64_t n)
     return best;
 }
 
+/* The layout of tick_state above: kernels.TICK_ABI must equal it, or kernels.py does not use this
+ * library (a stale build of an older layout would leave fields unwritten). 2: `use` added. */
+int64_t reachset_tick_abi(void)
+{
+    return 2;
+}
+
 /* The smallest use reported for a violated check (set_use._ABOVE_ONE): nextafter(1.0, 2.0). */
 #define ABOVE_ONE 1.0000000000000002
 

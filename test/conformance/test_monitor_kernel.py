@@ -130,6 +130,13 @@ def test_joint_monitor_equals_numpy_tick(plant_kind):
     assert seen == {"ok", "violation", "invalid", "gap_reset"}
 
 
+@needs_kernel
+def test_the_loaded_kernel_has_the_state_layout_of_its_mirror():
+    """A library built from an older _tick.c (a tick_state without ``use``) would leave the set
+    use unwritten: kernels.py loads only one whose reachset_tick_abi is kernels.TICK_ABI."""
+    assert kernels.LIB.reachset_tick_abi() == kernels.TICK_ABI == 2
+
+
 def batch_segments(stamps, y, u, dt):
     """The segments ``reachset check`` cuts a stream into: a stamp step outside [0.5, 1.5] dt
     (the monitor's gap rule) ends one, a non-finite sample is left out of every one."""
