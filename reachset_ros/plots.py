@@ -9,6 +9,9 @@
 * :func:`plot_conformance` - Theorem 1: the extremes of the deviations ``y_a[k]`` over all
   test cases against the bounds of ``R_a[k]`` (available for every bag; the plot to look at
   when the bag has no estimates/references).
+* :func:`plot_status_set_use` - the monitor's set use over time from ``/conformance/status``
+  (:func:`status_set_use`), on a linear axis with the boundary 1.0 drawn and the violations
+  (use > 1) marked (issue 36.3).
 
 Every function writes one PNG and returns its path. No ROS import.
 """
@@ -26,7 +29,8 @@ from .conformance.theorem1 import xi_of
 from .synthesis.config import components_from_gains
 from .synthesis.reference_error import reference_error
 
-__all__ = ["plot_tracking_error", "plot_input", "plot_conformance", "plot_joint", "tracking_errors"]
+__all__ = ["plot_tracking_error", "plot_input", "plot_conformance", "plot_joint", "tracking_errors",
+           "status_set_use", "set_use_figure", "plot_status_set_use"]
 
 
 def _plt():
@@ -299,8 +303,8 @@ def demo_tracking(data, syn, until, model=None, references=None, inflation=0.0, 
 
 def demo_plots(res, record, workdir):
     """Figures of ``reachset demo``: per joint the measured tracking errors of the monitored
-    run (before the fault) against the guaranteed R_e, and the monitor's margins over time
-    with the fault and the safe stop marked. Returns the PNG paths and :func:`demo_tracking`'s
+    run (before the fault) against the guaranteed R_e, and the monitor's set use over time
+    (:func:`plot_status_set_use`) with the fault and the safe stop marked. Returns the PNG paths and :func:`demo_tracking`'s
     statistics."""
     plt = _plt()
     outdir = Path(workdir) / "plots"
@@ -351,23 +355,79 @@ def demo_plots(res, record, workdir):
         _save(plt, fig, p)
         paths.append(str(p))
     if status:
-        ss = sorted(status)
-        t0 = ss[0]
-        t = (np.array(ss) - t0) * 1e-9
-        margins = np.array([list(status[s].margin) for s in ss])
-        fig, ax = plt.subplots(figsize=(9, 4))
-        for i, name in enumerate(status[ss[0]].name):
-            ax.semilogy(t, np.clip(margins[:, i], 1e-7, None), lw=0.8, label=name)
-        for x, lab, c in ((fault, "fault", "k"), (stop, "safe stop", "r")):
-            if x is not None:
-                ax.axvline((x - t0) * 1e-9, color=c, ls="--", label=lab)
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("monitor margin (bound - N y_a) [rad]")
-        ax.legend(fontsize=7, ncol=4)
-        p = outdir / "demo_monitor_margins.png"
-        _save(plt, fig, p)
-        paths.append(str(p))
+        paths.append(str(plot_status_set_use(outdir / "demo_monitor_set_use.png", list(status.values()),
+                                             {"fault": fault, "safe stop": stop})))
     return paths, stats
+
+
+def status_set_use(msgs):
+    """The set use of ``/conformance/status`` messages: ``(names, stamps_ns (T,), use (T, J))``.
+
+    A message's ``set_use`` (the monitor's, issue 36.3: the largest ``|N y_a| / bound`` over the
+    tick's checks, 1.0 on the boundary, above 1 a violation, NaN when nothing was checked); a
+    message without it (a bag recorded before the field was added) gives
+    ``deviation / (deviation + margin)`` of its tightest check (NaN where nothing was checked:
+    a margin of +-1e300). The joints are those of the first message, in its order.
+    """
+    msgs = sorted(msgs, key=header_stamp_ns)
+    names = list(msgs[0].name) if msgs else []
+    stamps = np.array([header_stamp_ns(m) for m in msgs], dtype=np.int64)
+    use = np.full((len(msgs), len(names)), np.nan)
+    for i, m in enumerate(msgs):
+        col = {n: j for j, n in enumerate(m.name)}
+        given = np.asarray(getattr(m, "set_use", ()), dtype=float).ravel()
+        if len(given) == len(m.name):
+            row = given
+        else:
+            dev, margin = np.asarray(m.deviation, float), np.asarray(m.margin, float)
+            bound = dev + margin
+            with np.errstate(divide="ignore", invalid="ignore"):
+                row = np.where((np.abs(margin) < 1e299) & (bound > 0), dev / np.where(bound > 0, bound, 1.0), np.nan)
+        use[i] = [row[col[n]] if n in col else np.nan for n in names]
+    return names, stamps, use
+
+
+def set_use_figure(names, t, use, marks=None):
+    """The figure of :func:`plot_status_set_use`: ``(fig, ax)``, one line per joint over ``t`` [s].
+
+    Linear axis from 0; the boundary of the reachable sets (1.0) drawn, the region above it
+    shaded, each tick with a use above 1 marked (a violation); an infinite use (a NaN
+    deviation, fail closed) drawn at the top of the axis. ``marks``: ``{label: t}`` vertical lines.
+    """
+    plt = _plt()
+    use = np.asarray(use, float)
+    finite = use[np.isfinite(use)]
+    top = max(1.1, 1.05 * float(finite.max())) if len(finite) else 1.1
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for i, name in enumerate(names):
+        u = np.where(np.isposinf(use[:, i]), top, use[:, i])
+        (line,) = ax.plot(t, u, lw=0.8, label=name)
+        over = u > 1.0
+        if over.any():
+            ax.plot(np.asarray(t)[over], u[over], "x", ms=4, color=line.get_color())
+    ax.axhline(1.0, color="r", lw=1.2, label="boundary of the reachable set (1.0)")
+    ax.axhspan(1.0, top, color="r", alpha=0.07, lw=0)
+    for (lab, x), c in zip((marks or {}).items(), ("k", "m", "c", "y")):
+        if x is not None:
+            ax.axvline(x, color=c, ls="--", label=lab)
+    ax.set_ylim(0.0, top)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("set use |N y_a| / bound (> 1: violation)")
+    ax.legend(fontsize=7, ncol=4, loc="upper left")
+    return fig, ax
+
+
+def plot_status_set_use(path, msgs, marks=None):
+    """The monitor's set use over time (:func:`status_set_use` of the ``/conformance/status``
+    messages ``msgs``, :func:`set_use_figure`) as a PNG at ``path``; ``marks``: ``{label:
+    stamp_ns}`` (e.g. the fault and the safe stop). Returns the path."""
+    plt = _plt()
+    names, stamps, use = status_set_use(msgs)
+    t0 = int(stamps[0]) if len(stamps) else 0
+    fig, _ax = set_use_figure(names, (stamps - t0) * 1e-9, use,
+                              {k: None if v is None else (v - t0) * 1e-9 for k, v in (marks or {}).items()})
+    _save(plt, fig, path)
+    return Path(path)
 
 
 def plot_deviations(directory, name, model, thm, devs):

@@ -21,13 +21,44 @@ from .messages import header_stamp_ns, typestore
 from .topics import check_bag
 
 
+#: (message type, the bag's definition text) -> the typestore to decode it with (None: ours)
+_OWN_TYPESTORES = {}
+
+
+def _own_typestore(conn, ts):
+    """``ts``, or, for a connection whose bag defines its ``reachset_msgs`` type otherwise (a bag
+    recorded before a field was added, e.g. ConformanceStatus.set_use of issue 36.3), a typestore
+    with the bag's own definition (its messages then lack the new field)."""
+    md = getattr(conn, "msgdef", None)
+    data = getattr(md, "data", "") or ""
+    if not conn.msgtype.startswith("reachset_msgs/") or getattr(getattr(md, "format", None), "name", "") != "MSG" \
+            or not data.strip():
+        return ts
+    key = (conn.msgtype, data)
+    cache = _OWN_TYPESTORES
+    if key not in cache:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+        try:
+            types = get_types_from_msg(data, conn.msgtype)
+            if types[conn.msgtype] == ts.fielddefs.get(conn.msgtype):
+                cache[key] = None
+            else:
+                own = get_typestore(Stores.ROS2_JAZZY)
+                own.register(types)
+                cache[key] = own
+        except Exception:  # noqa: BLE001 (a definition rosbags cannot parse: decode with ours)
+            cache[key] = None
+    return ts if cache[key] is None else cache[key]
+
+
 def _decoded(reader, conns, ts, path=""):
     """``(topic, log_time_ns, msg)`` of the connections ``conns`` of an open rosbags reader,
-    in the order it yields them, each message decoded with ``ts``. A message that is not valid
-    CDR for its type raises :class:`ReachsetError` naming the bag, the topic and the log time."""
+    in the order it yields them, each message decoded with ``ts`` (or the bag's own definition
+    of a ``reachset_msgs`` type where it differs, :func:`_own_typestore`). A message that is not
+    valid CDR for its type raises :class:`ReachsetError` naming the bag, the topic and the log time."""
     for conn, t, raw in reader.messages(connections=conns):
         try:
-            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            msg = _own_typestore(conn, ts).deserialize_cdr(raw, conn.msgtype)
         except Exception as e:  # noqa: BLE001 (rosbags raises SerdeError, struct.error, ...)
             raise ReachsetError(f"{path}: malformed message on {conn.topic} at log time {t} ns "
                                 f"(not valid CDR for {conn.msgtype}: {type(e).__name__}: {first_line(e)})") from None

@@ -70,8 +70,13 @@ class _EnvelopeCount:
                 "classified_ticks": int(self.classified[j])}
 
 
-def replay_joints(model, series, thm=None):
+def replay_joints(model, series, thm=None, uses=None):
     """Feed the series tick by tick to the online monitor; returns per-joint results, durations.
+
+    Each joint's result has ``largest_set_use``: the largest finite set use of its ticks (the
+    monitor's ``use``, ConformanceStatus.set_use; None: nothing checked). ``uses``, a dict,
+    receives each joint's set use per tick (NaN: nothing checked), equal to the batch side's
+    :func:`reachset_ros.conformance.set_use.set_use` to the bit.
 
     Joints with one-dimensional outputs, identical stamps and identical segment breaks run
     together in one :class:`~reachset_ros.conformance.monitor.Monitor` (the monitor node's code
@@ -97,6 +102,7 @@ def replay_joints(model, series, thm=None):
         first = [None] * len(group)
         checks = np.zeros(len(group), dtype=np.int64)
         d = np.empty(len(s0.stamps))
+        use = np.full((len(s0.stamps), len(group)), np.nan)
         cut = breaks[group[0]]
         for i in range(len(s0.stamps)):
             t0 = time.perf_counter()
@@ -106,9 +112,9 @@ def replay_joints(model, series, thm=None):
             r = mon.tick(int(s0.stamps[i]), Y[i], U[i])
             d[i] = time.perf_counter() - t0
             if isinstance(r, dict):
-                status, checked = r["status"], r["checked"]
+                status, checked, use[i] = r["status"], r["checked"], r["use"]
             else:
-                status, checked = [r.status], [r.checked]
+                status, checked, use[i] = [r.status], [r.checked], r.use
             env.tick(int(s0.stamps[i]), Y[i], U[i], [st == "violation" for st in status])
             for j, st in enumerate(status):
                 checks[j] += checked[j]
@@ -119,8 +125,12 @@ def replay_joints(model, series, thm=None):
         durs.append(d)
         for j, n in enumerate(group):
             starts = test_case_starts(series[n].segments, model.estimator.history)[0]
+            finite = use[:, j][np.isfinite(use[:, j])]
             out[n] = {"violations": int(viol[j]), "first_violation_ns": first[j],
-                      "test_cases": int(len(starts)), "checks": int(checks[j]), **env.counts(j)}
+                      "test_cases": int(len(starts)), "checks": int(checks[j]), **env.counts(j),
+                      "largest_set_use": float(finite.max()) if len(finite) else None}
+            if uses is not None:
+                uses[n] = use[:, j].copy()
     return out, durs, together
 
 

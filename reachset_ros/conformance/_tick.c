@@ -43,6 +43,7 @@ typedef struct {
     int64_t *checked, *step, *start_tick;
     int8_t *status;           /* 0 ok, 1 violation, 2 invalid, 3 gap_reset */
     int64_t *longest;         /* largest step k checked this tick (-1: none) */
+    double *use;              /* set use: largest |N y_a| / bound over the checks (NaN: none) */
 } tick_state;
 
 /* out[c] = sum over the nonzero entries a of row `row` of M (n_cols wide), in order, of
@@ -98,6 +99,38 @@ static int64_t argmin(const double *v, int64_t n)
         }
     }
     return best;
+}
+
+/* The layout of tick_state above: kernels.TICK_ABI must equal it, or kernels.py does not use this
+ * library (a stale build of an older layout would leave fields unwritten). 2: `use` added. */
+int64_t reachset_tick_abi(void)
+{
+    return 2;
+}
+
+/* The smallest use reported for a violated check (set_use._ABOVE_ONE): nextafter(1.0, 2.0). */
+#define ABOVE_ONE 1.0000000000000002
+
+/* set_use._ratio of one half-space: dev / bound where the bound is positive; a non-positive
+ * bound counts 1 when respected and infinity when violated; a NaN counts infinity. */
+static inline double use_ratio(double dev, double bound, int violated)
+{
+    double r = bound > 0 ? dev / bound : (violated ? INFINITY : 1.0);
+    return isnan(r) ? INFINITY : r;
+}
+
+/* set_use.check_use of one check (one half-space pair, N = [N]): the set use of the check,
+ * above 1 exactly when it is violated; -0.0 made +0.0 as there (no NaN is returned). */
+static inline double check_use(double Ny, double dp, double dm, double mp, double mm)
+{
+    int vp = !(mp >= 0), vm = !(mm >= 0);
+    double rp = use_ratio(Ny, dp, vp), rm = use_ratio(-Ny, dm, vm);
+    double r = rp >= rm ? rp : rm;
+    if (vp || vm)
+        r = r >= ABOVE_ONE ? r : ABOVE_ONE;
+    else
+        r = r <= 1.0 ? r : 1.0;
+    return r + 0.0;
 }
 
 /* Returns 1 if every joint is "ok", else 0. `mp`, `mm`: scratch of J*S doubles. */
@@ -183,12 +216,15 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
     int64_t all_ok = all_valid && !gap;
     for (int64_t j = 0; j < J; ++j) {
         int64_t cnt = 0, longest = -1;
+        double use = NAN;
         for (int64_t k = 0; k < S; ++k) {
             int64_t c = j * S + k;
             int64_t a = s->ages[c] < S - 1 ? s->ages[c] : S - 1;
             if (s->active[c]) {
                 mp[c] = s->dp[j * S + a] - s->Ny[c];
                 mm[c] = s->dm[j * S + a] + s->Ny[c];
+                double r = check_use(s->Ny[c], s->dp[j * S + a], s->dm[j * S + a], mp[c], mm[c]);
+                use = (isnan(use) || r > use) ? r : use;     /* numpy's fmax */
                 ++cnt;
                 if (s->ages[c] > longest)
                     longest = s->ages[c];
@@ -209,6 +245,7 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         int64_t k = s->ages[c] < S - 1 ? s->ages[c] : S - 1;
         s->checked[j] = cnt;
         s->longest[j] = longest;
+        s->use[j] = use;
         s->margin[j] = valid[j] ? margin : -INFINITY;
         s->step[j] = cnt > 0 ? k : -1;
         s->start_tick[j] = cnt > 0 ? s->start[c] : -1;

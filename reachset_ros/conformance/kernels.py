@@ -47,6 +47,10 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 
 
+#: the layout of ``tick_state`` in ``_tick.c`` this module's mirror expects (``reachset_tick_abi``)
+TICK_ABI = 2
+
+
 def _load():
     if os.environ.get("REACHSET_NO_KERNEL"):
         return None, None
@@ -55,12 +59,23 @@ def _load():
         path = here / f"_tick{suffix}"
         if path.exists():
             lib = ctypes.CDLL(str(path))
+            abi = getattr(lib, "reachset_tick_abi", None)
+            if abi is None or _abi(abi) != TICK_ABI:
+                import warnings
+                warnings.warn(f"{path} is a stale build of _tick.c (rebuild: pip install -e . or make venv); "
+                              "the numpy tick is used", RuntimeWarning, stacklevel=2)
+                return None, None
             lib.reachset_monitor_tick.argtypes = [_P, _I, _P, _P]
             lib.reachset_monitor_tick.restype = _I
             lib.reachset_sweep_block.argtypes = [_P, _P, _P, _P, _I, _I, _I, _I, _P, _P, _P, _P, _I, _I, _P, _P]
             lib.reachset_sweep_block.restype = _I
             return lib, str(path)
     return None, None
+
+
+def _abi(fn):
+    fn.argtypes, fn.restype = [], _I
+    return int(fn())
 
 
 #: The loaded shared library (None: not built, or ``REACHSET_NO_KERNEL`` set) and its path.

@@ -50,6 +50,7 @@ import numpy as np
 
 from . import kernels
 from .kernels import advance, matvec, matvec_into, matvec_plan, predict_output
+from .set_use import check_use
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,7 @@ class TickResult:
     start_tick: int = -1        # tick index at which that test case started
     deviation: float = 0.0      # N y_a of that check
     bound: float = 0.0          # its offset D_k xi
+    use: float = math.nan       # set use: the largest |N y_a| / bound over the checks (NaN: none; set_use.check_use)
 
 class JointMonitor:
     """Mutable state of one joint's monitor; feed it :meth:`tick` once per measurement."""
@@ -159,18 +161,22 @@ class JointMonitor:
                 Ny = matvec(self.mm.normals[0], ya)[0]
                 mp = self.mm.dp_vec[self.ages] - Ny
                 mm = self.mm.dm_vec[self.ages] + Ny
+                use = float(np.fmax.reduce(check_use(Ny[None], self.mm.dp_vec[self.ages][None],
+                                                     self.mm.dm_vec[self.ages][None])[0]))
                 j, i = int(np.argmin(mp)), int(np.argmin(mm))
                 if mp[j] <= mm[i] or math.isnan(mp[j]):
                     worst = (float(mp[j]), j, float(Ny[j]), float(self.mm.dp_vec[self.ages[j]]))
                 else:
                     worst = (float(mm[i]), i, float(-Ny[i]), float(self.mm.dm_vec[self.ages[i]]))
             else:
-                worst = (math.inf, -1, 0.0, 0.0)
+                worst, use = (math.inf, -1, 0.0, 0.0), math.nan
                 for col in range(self.X.shape[1]):
                     k = int(self.ages[col])
                     Ny = matvec(self.mm.normals[k], ya[:, col:col + 1])[:, 0]
                     mp = self.mm.dp[k] - Ny
                     mm = self.mm.dm[k] + Ny
+                    use = float(np.fmax(use, check_use(Ny[:, None], self.mm.dp[k][:, None],
+                                                       self.mm.dm[k][:, None])[0][0]))
                     j, i = int(np.argmin(mp)), int(np.argmin(mm))
                     if mp[j] < worst[0] or math.isnan(mp[j]):
                         worst = (float(mp[j]), col, float(Ny[j]), float(self.mm.dp[k][j]))
@@ -180,7 +186,7 @@ class JointMonitor:
                         break                     # fail closed: a NaN margin is no margin
             margin, col, dev, bound = worst
             res = TickResult(margin >= 0, "ok" if margin >= 0 else "violation", self.X.shape[1], margin,
-                             int(self.ages[col]), int(self.starts[col]), dev, bound)
+                             int(self.ages[col]), int(self.starts[col]), dev, bound, use=use)
             if status == "gap_reset" and res.status == "ok":
                 res.status = "gap_reset"
             self.X = advance(p, self.X, U)
@@ -305,7 +311,10 @@ class Monitor:
         Keys: ``status`` (list of ok | violation | invalid | gap_reset), ``margin`` (J,),
         ``checked`` (J,), ``step`` (J,), ``start_tick`` (J,), ``deviation`` (J,), ``bound`` (J,),
         ``longest`` (J,): the largest step k checked at this tick (-1: nothing checked; k*:
-        the test case started k* ticks ago was checked, Theorem 1's last row).
+        the test case started k* ticks ago was checked, Theorem 1's last row), ``use`` (J,):
+        the set use, the largest ``|N y_a| / bound`` over the checks of this tick
+        (:func:`~reachset_ros.conformance.set_use.check_use`, the batch side's
+        :func:`~reachset_ros.conformance.set_use.set_use` of the same tick; NaN: nothing checked).
         """
         if not self.kernel:
             return self._tick_numpy(stamp_ns, y, u)
@@ -321,7 +330,7 @@ class Monitor:
         return {"status": status, "margin": out["margin"].copy(), "checked": out["checked"].copy(),
                 "step": out["step"].copy(), "start_tick": out["start_tick"].copy(),
                 "deviation": out["deviation"].copy(), "bound": out["bound"].copy(),
-                "longest": out["longest"].copy()}
+                "longest": out["longest"].copy(), "use": out["use"].copy()}
 
     def _kernel_setup(self):
         p, J, S = self.plant, self.J, self.S
@@ -333,7 +342,7 @@ class Monitor:
              "out": {"margin": np.empty(J), "deviation": np.empty(J), "bound": np.empty(J),
                      "checked": np.empty(J, np.int64), "step": np.empty(J, np.int64),
                      "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8),
-                     "longest": np.empty(J, np.int64)}}
+                     "longest": np.empty(J, np.int64), "use": np.empty(J)}}
         o = k["out"]
         ptr = kernels.ptr
         cl = self._clock
@@ -349,7 +358,7 @@ class Monitor:
             y_in=ptr(k["y"]), u_in=ptr(k["u"]),
             margin=ptr(o["margin"]), deviation=ptr(o["deviation"]), bound=ptr(o["bound"]),
             checked=ptr(o["checked"]), step=ptr(o["step"]), start_tick=ptr(o["start_tick"]),
-            status=ptr(o["status"]), longest=ptr(o["longest"]))
+            status=ptr(o["status"]), longest=ptr(o["longest"]), use=ptr(o["use"]))
         k["state"] = st
         k["ptr"] = ctypes.cast(ctypes.pointer(st), ctypes.c_void_p)
         k["mp_ptr"], k["mm_ptr"] = ptr(k["mp"]), ptr(k["mm"])
@@ -419,6 +428,9 @@ class Monitor:
         idx = self._flat + ages
         mp = np.where(active, self._dpf[idx] - Ny, np.inf)
         mm = np.where(active, self._dmf[idx] + Ny, np.inf)
+        # the set use of the checks (set_use.check_use, the batch side's formula), largest per joint
+        r = check_use(Ny.reshape(1, -1), self._dpf[idx].reshape(1, -1), self._dmf[idx].reshape(1, -1))[0]
+        use = np.fmax.reduce(np.where(active, r.reshape(J, S), np.nan), axis=1)
         jp, jm = mp.argmin(axis=1), mm.argmin(axis=1)
         r = np.arange(J)
         vp, vm = mp[r, jp], mm[r, jm]
@@ -442,7 +454,7 @@ class Monitor:
                 "step": np.where(has, k, -1), "start_tick": np.where(has, self.start[r, col], -1),
                 "deviation": np.where(has, np.where(use_p, Ny[r, col], -Ny[r, col]), 0.0),
                 "bound": np.where(has, np.where(use_p, self.dp[r, k], self.dm[r, k]), 0.0),
-                "longest": np.where(active, self.ages, -1).max(axis=1)}
+                "longest": np.where(active, self.ages, -1).max(axis=1), "use": use}
 
 
 # ------------------------------------------------------------------ the compiled kernel
@@ -456,7 +468,7 @@ class _TickState(ctypes.Structure):
                     "dp", "dm", "X0", "X1", "cur", "start", "ages", "active", "y_hist", "u_hist",
                     "in_segment", "tick_index", "last_stamp", "has_last", "Y", "Ny", "U", "BU",
                     "y_in", "u_in", "margin", "deviation", "bound", "checked", "step", "start_tick",
-                    "status", "longest")])
+                    "status", "longest", "use")])
 
 
 def _tick_kernel_applies(plant, estimator, joints):

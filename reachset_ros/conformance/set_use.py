@@ -18,7 +18,7 @@ import numpy as np
 
 from .kernels import as_2d, matvec, sweep
 
-__all__ = ["SetUse", "set_use"]
+__all__ = ["SetUse", "check_use", "set_use"]
 
 #: the smallest use reported for a violated check (a ratio of exactly 1.0 can still be a
 #: violation after rounding; a violation is always reported above 1)
@@ -52,6 +52,39 @@ def _ratio(dev, bound, violated):
     return np.where(np.isnan(r), np.inf, r)
 
 
+def check_use(Ny, dp, dm):
+    """The use of the reachable set by each check: the one formula of the batch side
+    (:func:`set_use`) and the online monitor (:meth:`~reachset_ros.conformance.monitor.Monitor._tick_numpy`;
+    the compiled tick ``_tick.c`` performs the same operations, bit for bit).
+
+    Parameters
+    ----------
+    Ny : ndarray (q, M)
+        ``N_k y_a`` of M checks (columns) with q half-space pairs each (Theorem 1).
+    dp, dm : ndarray broadcastable to (q, M)
+        Their offsets ``d+_k`` and ``d-_k`` (``-d-_k <= N_k y_a <= d+_k``).
+
+    Returns
+    -------
+    use : ndarray (M,)
+        ``max(N y_a / d+, -N y_a / d-)`` over the rows: at most 1.0 where every row holds,
+        above 1 (at least ``nextafter(1, 2)``) where one is violated; a NaN deviation counts
+        infinity (fail closed).
+    violated : ndarray of bool (M,)
+        Some row violated (``not (d+ - N y_a >= 0)`` or ``not (d- + N y_a >= 0)``, the
+        monitor's and :func:`~reachset_ros.conformance.theorem1.check`'s test).
+    """
+    mp = dp - Ny
+    mm = dm + Ny
+    vp, vm = ~(mp >= 0), ~(mm >= 0)                    # a NaN margin is a violation (as check)
+    viol = vp.any(axis=0) | vm.any(axis=0)
+    r = np.maximum(_ratio(Ny, dp, vp).max(axis=0), _ratio(-Ny, dm, vm).max(axis=0))
+    # a violation is above 1, a respected bound at most 1 (x <= d > 0 gives x / d <= 1 exactly);
+    # + 0.0 makes a use of -0.0 (a deviation of exactly 0 at k = 0) +0.0, so that the largest of
+    # several uses has one bit pattern whatever the order they are compared in (online = batch)
+    return np.where(viol, np.maximum(r, _ABOVE_ONE), np.minimum(r, 1.0)) + 0.0, viol
+
+
 def set_use(plant, thm, estimator, xi, y, u, segments, horizon):
     """The set use of every tick of a recording (Theorem 1's checks, as
     :func:`~reachset_ros.conformance.theorem1.check` makes them).
@@ -72,16 +105,9 @@ def set_use(plant, thm, estimator, xi, y, u, segments, horizon):
     bad = np.zeros(T, dtype=bool)
 
     def visit(k, m, t, ya):
-        Ny = matvec(thm.normals[k], ya)
         dp, dm = offs[k]
-        mp = dp[:, None] - Ny
-        mm = dm[:, None] + Ny
-        vp, vm = ~(mp >= 0), ~(mm >= 0)                    # a NaN margin is a violation (as check)
-        viol = vp.any(axis=0) | vm.any(axis=0)
+        r, viol = check_use(matvec(thm.normals[k], ya), dp[:, None], dm[:, None])
         bad[t[viol]] = True
-        r = np.maximum(_ratio(Ny, dp[:, None], vp).max(axis=0), _ratio(-Ny, dm[:, None], vm).max(axis=0))
-        # a violation is above 1, a respected bound at most 1 (x <= d > 0 gives x / d <= 1 exactly)
-        r = np.where(viol, np.maximum(r, _ABOVE_ONE), np.minimum(r, 1.0))
         np.fmax.at(use, t, r)
 
     M = sweep(plant, estimator, y, u, segments, horizon, visit)

@@ -396,6 +396,7 @@ class MonitorNode(Node):
         m.margin = [float(x) if np.isfinite(x) else (1e300 if x > 0 else -1e300) for x in res["margin"]]
         m.deviation = [float(x) for x in res["deviation"]]
         m.tightest_step = [int(x) for x in res["step"]]
+        m.set_use = [float(x) for x in res["use"]]     # set_use.check_use's largest per joint (NaN: none)
         m.check_duration = float(ev.duration)
         m.model_id = self.model_id
         self.status_pub.publish(m)

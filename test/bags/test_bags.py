@@ -363,7 +363,8 @@ def monitored_bag(path, t0, n, storage="mcap"):
             w.write(bags.STATUS_TOPIC, CS(header=bags.header(t), conformant=i < n - 2, safe_stop_active=False, tick=i,
                                           horizon=3, active_test_cases=1, name=["a", "b"], margin=np.array([0.5, i]),
                                           deviation=np.zeros(2), tightest_step=np.zeros(2, np.int32),
-                                          check_duration=0.0, model_id="m"), t + 2, bags.STATUS_TYPE)
+                                          check_duration=0.0, model_id="m", set_use=np.zeros(2)), t + 2,
+                                          bags.STATUS_TYPE)
         w.write(bags.FAULT_ONSET_TOPIC, bags.header(t0 + DT_NS), t0 + DT_NS + 3, bags.FAULT_ONSET_TYPE)
         w.write(bags.SAFE_STOP_TOPIC, SS(header=bags.header(t), active=True, reason="why", kind="violation", joint="a",
                                          step=2, test_case_start_ns=t0, deviation=1.0, bound=0.5, window_bag=""),

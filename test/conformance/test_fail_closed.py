@@ -41,6 +41,8 @@ def test_a_nan_in_the_monitors_prediction_is_a_violation(setup, kernel):
     r = m.tick(T0 + DT_NS * 300, Y[300], U[300])
     assert r["status"][0] == "violation" and np.isnan(r["margin"][0]), r
     assert r["status"][1] == "ok"
+    # the set use (issue 36.3) fails closed too: a NaN deviation uses the set infinitely
+    assert r["use"][0] == np.inf and 0 <= r["use"][1] <= 1, r["use"]
 
 
 def test_the_compiled_and_numpy_ticks_agree_on_a_nan(setup):
@@ -55,7 +57,7 @@ def test_the_compiled_and_numpy_ticks_agree_on_a_nan(setup):
                 m.X[:, 1 * m.S + 3] = np.nan
         ra, rb = a.tick(T0 + DT_NS * t, Y[t], U[t]), b.tick(T0 + DT_NS * t, Y[t], U[t])
         assert ra["status"] == rb["status"], t
-        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound"):
+        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound", "use"):
             assert ra[key].tobytes() == rb[key].tobytes(), (t, key)
 
 
@@ -79,6 +81,7 @@ def test_a_nan_in_the_one_joint_monitors_check_is_a_violation(setup, where):
             if r.checked > 3:
                 break
     assert r.status == "violation" and not r.conformant and np.isnan(r.margin), r
+    assert r.use == np.inf        # the set use fails closed too (issue 36.3)
 
 
 def test_a_nan_deviation_fails_the_batch_verdict_from_the_extremes(setup):

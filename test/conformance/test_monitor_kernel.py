@@ -8,6 +8,7 @@ from reachset_ros.conformance import kernels
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.conformance.model import ConformanceModel, JointSets
 from reachset_ros.conformance.monitor import JointMonitor, Monitor, MonitorModel
+from reachset_ros.conformance.set_use import set_use
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
 T0 = 1_700_000_000_000_000_000
@@ -69,7 +70,7 @@ def test_kernel_equals_numpy_bit_for_bit(plant_kind):
         ra, rb = a.tick(int(stamps[t]), Ys[t], Us[t]), b.tick(int(stamps[t]), Ys[t], Us[t])
         assert ra["status"] == rb["status"], t
         seen.update(ra["status"])
-        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound", "longest"):
+        for key in ("margin", "checked", "step", "start_tick", "deviation", "bound", "longest", "use"):
             assert ra[key].tobytes() == rb[key].tobytes(), (t, key, ra[key], rb[key])
         if t % 97 == 0 or t == len(stamps) - 1:
             assert a.X.tobytes() == b.X.tobytes()
@@ -124,9 +125,93 @@ def test_joint_monitor_equals_numpy_tick(plant_kind):
             q = jm.tick(int(stamps[t]), Ys[t, j], Us[t, j])
             assert q.status == r["status"][j], (t, j)
             seen.add(q.status)
-            for key in ("margin", "checked", "step", "start_tick", "deviation", "bound"):
+            for key in ("margin", "checked", "step", "start_tick", "deviation", "bound", "use"):
                 assert np.float64(getattr(q, key)).tobytes() == np.float64(r[key][j]).tobytes(), (t, j, key)
     assert seen == {"ok", "violation", "invalid", "gap_reset"}
+
+
+@needs_kernel
+def test_the_loaded_kernel_has_the_state_layout_of_its_mirror():
+    """A library built from an older _tick.c (a tick_state without ``use``) would leave the set
+    use unwritten: kernels.py loads only one whose reachset_tick_abi is kernels.TICK_ABI."""
+    assert kernels.LIB.reachset_tick_abi() == kernels.TICK_ABI == 2
+
+
+def batch_segments(stamps, y, u, dt):
+    """The segments ``reachset check`` cuts a stream into: a stamp step outside [0.5, 1.5] dt
+    (the monitor's gap rule) ends one, a non-finite sample is left out of every one."""
+    steps = np.diff(stamps) * 1e-9
+    gap = np.concatenate([[False], ~((0.5 * dt <= steps) & (steps <= 1.5 * dt))])
+    valid = np.isfinite(y).all(axis=1) & np.isfinite(u).all(axis=1)
+    segs, s = [], None
+    for t in range(len(stamps)):
+        if s is not None and (gap[t] or not valid[t]):
+            segs.append((s, t))
+            s = None
+        if valid[t] and s is None:
+            s = t
+    return segs + ([(s, len(stamps))] if s is not None else [])
+
+
+@pytest.mark.parametrize("kernel", [pytest.param(True, marks=needs_kernel), False])
+def test_online_set_use_equals_the_batch_set_use_bit_for_bit(kernel):
+    """Issue 36.3: the set use the monitor reports per tick and joint (``use``, published as
+    ConformanceStatus.set_use) is set_use.set_use's (``reachset report``'s) of the same tick, to
+    the bit: gaps, a clock step back, non-finite samples (NaN where nothing is checked) and a
+    fault with violations (use > 1 exactly at the violating ticks). JointMonitor's too."""
+    p = lwa4p_joint_plant()
+    Y, U = closed_loop(p, 2200, 6, seed=1)
+    model, thm = model_for(p, Y[:1000], U[:1000], K=40, scale=1.02)
+    mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(6)]
+    mon, jms = Monitor(mms, kernel=kernel), [JointMonitor(m) for m in mms]
+    stamps, Ys, Us = messy_stream(Y, U, seed=2)
+    online, single = np.empty(Ys.shape), np.empty(Ys.shape)
+    violating = np.zeros(Ys.shape, dtype=bool)
+    for t in range(len(stamps)):
+        r = mon.tick(int(stamps[t]), Ys[t], Us[t])
+        online[t] = r["use"]
+        violating[t] = [s == "violation" for s in r["status"]]
+        single[t] = [jm.tick(int(stamps[t]), Ys[t, j], Us[t, j]).use for j, jm in enumerate(jms)]
+    assert single.tobytes() == online.tobytes()
+    for j in range(6):
+        y, u = Ys[:, j:j + 1], Us[:, j:j + 1]
+        segs = batch_segments(stamps, y, u, p.dt)
+        batch = set_use(p, thm, Estimator(), model.checked_xi(f"j{j}"), np.where(np.isfinite(y), y, 0.0),
+                        np.where(np.isfinite(u), u, 0.0), segs, 40)
+        assert batch.use.tobytes() == online[:, j].tobytes(), j
+        assert np.array_equal(batch.violating, violating[:, j]) and np.array_equal(online[:, j] > 1, violating[:, j])
+    assert np.isnan(online).any() and (online > 1).any() and ((online > 0.5) & (online <= 1)).any()
+
+
+def test_joint_monitor_set_use_equals_the_batch_set_use_for_two_outputs():
+    """JointMonitor's set use with a two-dimensional output (normals N_k of several rows that
+    change with k): the batch side's, bit for bit, violations included."""
+    dt = 0.01
+    A = np.array([[1, dt, 0], [0, 0.98, dt], [0, 0, 0.9]])
+    C = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    p = LinearPlant(A=A, B=np.array([[0], [0], [dt]]), C=C, Gw=np.array([[dt, 0], [0, dt], [0, 0]]), Gv=np.eye(2),
+                    dt=dt)
+    rng = np.random.default_rng(5)
+    T, K = 1200, 8
+    x, y, u = np.zeros(3), np.zeros((T, 2)), np.zeros((T, 1))
+    for k in range(T):
+        y[k] = C @ x + 1e-3 * rng.uniform(-1, 1, 2)
+        u[k] = -5 * x[0] - 2 * x[1] + np.sin(0.01 * k)
+        x = A @ x + p.B @ u[k] + p.Gw @ (0.5 * rng.uniform(-1, 1, 2))
+    est = Estimator("output")
+    thm = cf.Theorem1.build(p, K)
+    sets = cf.identify_sets(p, thm, cf.deviation_extremes(p, est, y, u, ((0, T),), K, thm))
+    js = {"j": JointSets(tuple(0.8 * sets.alpha_w), tuple(0.8 * sets.alpha_v), tuple(sets.c_w), tuple(sets.c_v))}
+    model = ConformanceModel(p, {"kind": "matrices", "dt": dt}, est, K, js)
+    y = y.copy()
+    y[600, 1] = np.nan                                    # a hole: NaN use while the test cases restart
+    jm = JointMonitor(MonitorModel.from_model(model, "j"))
+    stamps = T0 + 10_000_000 * np.arange(T, dtype=np.int64)
+    online = np.array([jm.tick(int(stamps[i]), y[i], u[i]).use for i in range(T)])
+    batch = set_use(p, thm, est, model.checked_xi("j"), np.where(np.isfinite(y), y, 0.0), u,
+                    batch_segments(stamps, y, u, dt), K)
+    assert batch.use.tobytes() == online.tobytes()
+    assert (online > 1).any() and np.isnan(online[600])
 
 
 @pytest.mark.parametrize("kernel", [pytest.param(True, marks=needs_kernel), False])

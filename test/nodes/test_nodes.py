@@ -13,7 +13,9 @@ from reachset_msgs.msg import ConformanceStatus, JointEstimate, JointReference, 
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from helpers import (JOINTS, NO_VERDICTS, PATIENT_LOOP, PATIENT_REFERENCE, PUB_QOS, Recorder, plant_stream, spin_until, wait_until, write_model)
+from helpers import (JOINTS, NO_VERDICTS, PATIENT_LOOP, PATIENT_REFERENCE, PUB_QOS, Recorder, plant_stream, spin_until,
+                     wait_until, write_model)
+from reachset_ros import bags
 from reachset_ros import conformance as cf
 from reachset_ros import processes
 from reachset_ros.bags import read_messages
@@ -516,6 +518,43 @@ def test_monitor_verdicts_on_a_recorded_closed_loop_equal_reachset_check(ros, tm
     assert first_check == first_monitor
     assert active and active[0] == first_monitor      # and that tick is the safe stop
     assert not chk["conformant"]
+    _assert_status_set_use_is_the_batch_set_use(bag, model, [m for _t, m in status])
+
+
+def _assert_status_set_use_is_the_batch_set_use(bag, model_path, live):
+    """Issue 36.3: /conformance/status.set_use, as recorded in the bag, is the batch side's set use
+    (set_use.set_use, ``reachset report``'s) of the same tick to the bit, at every tick at which
+    both checked the same test cases (the monitor all k*+1 of them, ``active_test_cases``, and the
+    bag's segment long enough: the monitor also checked test cases begun before the recording);
+    above 1 exactly at the monitor's violations; the operator's commands (``status``, ``watch``:
+    workflows.operator.set_use_of) show the field of the live messages."""
+    from reachset_ros.conformance.set_use import set_use
+    from reachset_ros.workflows.operator import set_use_of
+    m = mdl.load(model_path)
+    series, _ = bags.read_joint_series([bag], ALL_JOINTS, m.plant.dt)
+    thm = m.theorem1()
+    batch = {n: set_use(m.plant, thm, m.estimator, m.checked_xi(n), s.y, s.u, s.segments, m.horizon)
+             for n, s in series.items()}
+    compared, violated = 0, 0
+    for _topic, _t, st in read_messages([bag], ("/conformance/status",)):
+        assert list(st.name) == ALL_JOINTS and len(st.set_use) == len(ALL_JOINTS)
+        assert (np.asarray(st.set_use) > 1).any() == (min(st.margin) < 0)
+        if st.active_test_cases != m.horizon + 1:
+            continue
+        stamp = bags.header_stamp_ns(st)
+        for j, n in enumerate(ALL_JOINTS):
+            s = series[n]
+            i = int(np.searchsorted(s.stamps, stamp))
+            if i == len(s.stamps) or s.stamps[i] != stamp or not any(
+                    a + m.estimator.history <= i - m.horizon and i < b for a, b in s.segments):
+                continue
+            assert np.float64(st.set_use[j]).tobytes() == np.float64(batch[n].use[i]).tobytes(), (stamp, n)
+            compared += 1
+            violated += bool(st.set_use[j] > 1)
+    assert compared > 1000 and violated > 0, (compared, violated)
+    for msg in live[-50:]:
+        use = np.asarray(msg.set_use)
+        assert set_use_of(msg) == {n: (float(u) if np.isfinite(u) else None) for n, u in zip(msg.name, use)}
 
 
 def test_reference_node_names_by_joint_and_holds(ros, tmp_path):

@@ -120,10 +120,14 @@ def test_the_foxglove_layout_parses_and_names_only_what_exists():
 
     walk(doc["layout"])
     assert ids == set(doc["configById"])
-    # what the operator looks at: the margins of every joint, the stop, positions against estimates
+    # what the operator looks at: the set use (issue 36.3) and the margins of every joint, the
+    # stop, positions against estimates
     n = len(joints())
-    for field in ("margin", "deviation", "tightest_step"):
+    for field in ("set_use", "margin", "deviation", "tightest_step"):
         assert {f"/conformance/status.{field}[{i}]" for i in range(n)} <= set(paths)
+    # the set use on a linear axis from 0, not clipped above (a violation, > 1, stays visible)
+    [use] = [c for c in doc["configById"].values() if any(".set_use[" in p["value"] for p in c.get("paths", []))]
+    assert use.get("minYValue") == 0 and "maxYValue" not in use and "1.0" in use["title"]
     assert "/safe_stop.active" in paths and "/observer/estimate.position[0]" in paths
 
 
@@ -141,10 +145,11 @@ def test_the_plotjuggler_layout_parses_and_names_only_what_exists():
         else:
             check_path(topic, steps)
     assert {f"/joint_states/{j}/position" for j in names} <= set(curves)
+    assert {f"/conformance/status/set_use[{i}]" for i in range(len(names))} <= set(curves)
     assert "/safe_stop/active" in curves
 
 
-@pytest.mark.parametrize("path, why", [("/conformance/status.set_use[0]", "no field"),
+@pytest.mark.parametrize("path, why", [("/conformance/status.set_uses[0]", "no field"),
                                        ("/conformance/status.margin", "an array"),
                                        ("/safe_stop.reason", "not plotted"),
                                        ("/conformance/status.header", "ends at a message"),

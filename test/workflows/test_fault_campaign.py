@@ -196,7 +196,8 @@ def test_a_link_loss_counts_from_its_first_lost_sample(tmp_path):
                 w.write(bags.STATUS_TOPIC, CS(header=bags.header(t), conformant=True, safe_stop_active=False, tick=k,
                                               horizon=3, active_test_cases=1, name=["a"], margin=np.zeros(1),
                                               deviation=np.zeros(1), tightest_step=np.zeros(1, np.int32),
-                                              check_duration=0.0, model_id="m"), t + 2, bags.STATUS_TYPE)
+                                              check_duration=0.0, model_id="m", set_use=np.zeros(1)), t + 2,
+                                              bags.STATUS_TYPE)
     ev = cp.Event(3, "link", 1.0, "stop", fault="loss", magnitude=0.5)
     stop = T0 + 16 * DT
     o = cp.Outcome(ev, fault_ns=T0 + 4 * DT, stops=[(stop, stop + DT, "coverage")], bag=str(path))
