@@ -24,6 +24,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 from reachset_ros.commands import COMMANDS
@@ -38,7 +39,9 @@ def timed(argv, repeat, env=None):
     times = []
     for _ in range(repeat):
         t = time.perf_counter()
-        subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False, env=env)
+        # from a neutral directory: ``python -m`` puts the working directory first on sys.path
+        subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False, env=env,
+                       cwd=tempfile.gettempdir())
         times.append(time.perf_counter() - t)
     return statistics.median(times), min(times)
 
