@@ -475,3 +475,69 @@ def from_dict(d, source="model") -> Envelope:
                     bins=_count(d.get("bins"), "bins", source, 1), dilation=_count(d.get("dilation"), "dilation",
                                                                                      source),
                     hold=_count(d.get("hold"), "hold", source), grids=grids)
+
+
+def axis_range(je: JointEnvelope, feature):
+    """``(low, high)`` of a joint's ``feature`` axis: the training range widened by the
+    dilation (a value outside it is outside the envelope whatever the grids say)."""
+    a = je.axes[feature]
+    return float(a.origin), float(a.origin + a.cells * a.cell)
+
+
+def reference_limits(env: Envelope, names, *, q_min, q_max, qd_max, qdd_max):
+    """A reference class' limits cut to the envelope's axes, and what was cut (issue 37.3).
+
+    A reference generator that keeps ``q`` in ``[q_min, q_max]``, ``|qd| <= qd_max`` and
+    ``|qdd| <= qdd_max`` per joint commands motions the model was never validated on where those
+    limits reach beyond the envelope's position, velocity and acceleration axes. The cut limits
+    keep the references inside every axis; the occupancy grids (combinations of features) are
+    not enforced, so a reference inside the cut limits can still be classified outside (the
+    features are of the measured motion, which follows the reference within R_e).
+
+    Parameters
+    ----------
+    env : Envelope
+    names : list of str
+        The joints, in the order of the limits.
+    q_min, q_max, qd_max, qdd_max : array_like (n,) or float
+        The class' limits (rad, rad/s, rad/s^2).
+
+    Returns
+    -------
+    limits : dict
+        ``{q_min, q_max, qd_max, qdd_max}``, arrays (n,): each limit cut to the envelope.
+    cut : list of str
+        One line per limit that reached beyond the envelope, naming the joint, the feature, the
+        class' limit and the validated range: the part of the class never validated; and one
+        per joint the envelope does not record (its limits unchanged). Empty when the class lies
+        inside every axis of every joint.
+
+    Raises
+    ------
+    ReachsetError
+        A velocity or acceleration axis that does not contain 0 (no reference class with a rest
+        fits inside it).
+    """
+    n = len(names)
+    out = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
+           for k, v in (("q_min", q_min), ("q_max", q_max), ("qd_max", qd_max), ("qdd_max", qdd_max))}
+    cut = []
+    for j, name in enumerate(names):
+        je = env.joints.get(name)
+        if je is None:
+            cut.append(f"{name}: not recorded by the envelope (a joint the model does not cover): limits unchanged")
+            continue
+        lo, hi = axis_range(je, "q")
+        if out["q_min"][j] < lo or out["q_max"][j] > hi:
+            cut.append(f"{name}: positions [{out['q_min'][j]:.4g}, {out['q_max'][j]:.4g}] rad, validated "
+                       f"[{lo:.4g}, {hi:.4g}]")
+            out["q_min"][j], out["q_max"][j] = max(out["q_min"][j], lo), min(out["q_max"][j], hi)
+        for key, feature, unit in (("qd_max", "qd", "rad/s"), ("qdd_max", "qdd", "rad/s^2")):
+            lo, hi = axis_range(je, feature)
+            if not lo < 0.0 < hi:
+                raise ReachsetError(f"{name}: the envelope's {feature} axis [{lo:.4g}, {hi:.4g}] does not contain 0")
+            bound = min(-lo, hi)
+            if out[key][j] > bound:
+                cut.append(f"{name}: |{feature}| up to {out[key][j]:.4g} {unit}, validated up to {bound:.4g}")
+                out[key][j] = bound
+    return out, cut

@@ -25,12 +25,23 @@ last sample once it ends); the file must start and end at rest and stay inside t
 (``qd_max``, ``qdd_max``), else the node exits 2 naming the problem. ``hold`` runs on to the
 file's next rest and waits there; after a cleared safe stop the file is not resumed (it would
 jump from where the arm is held): the reference rests at the arm's position.
+
+``envelope_model`` (a model file whose identification recorded its validated envelope, issue
+37.3): the random moves are kept inside the envelope's position, velocity and acceleration axes
+(:func:`reachset_ros.conformance.envelope.reference_limits`: the box, ``qd_max`` and ``qdd_max``
+cut per joint; each cut is logged, naming the part of the class the model was never validated
+on; a joint the envelope does not record keeps its limits, logged). The axes only: a combination
+of features the envelope's grids never saw can still occur. A model without an envelope, or
+``trajectory_file`` beside it: exit 2.
 """
+import dataclasses
+
 import numpy as np
 from rclpy.node import Node
 from reachset_msgs.msg import JointReference, SafeStop
 from sensor_msgs.msg import JointState
 
+from ..errors import ReachsetError
 from ..sim.excite import TrajectoryPlayer, load_trajectory
 from ..sim.reference import ReferenceConfig, ReferenceGenerator, ReferenceStream
 from ..robot.dynamics import JOINT_NAMES
@@ -55,9 +66,13 @@ class ReferenceNode(Node):
         self.declare_parameter("trajectory_file", "", desc("a bag whose /reference this node plays instead of random "
                                                            "moves (reachset excite writes one); '' for random moves",
                                                            read_only=True))
+        self.declare_parameter("envelope_model", "", desc("a model file with a validated envelope: the random moves "
+                                                          "stay inside its position, velocity and acceleration axes "
+                                                          "('' : the class' own limits)", read_only=True))
         qd_max, qdd_max = float(self.get_parameter("qd_max").value), float(self.get_parameter("qdd_max").value)
         cfg = ReferenceConfig(qd_max=qd_max, qdd_max=qdd_max, lead=float(self.get_parameter("lead").value))
         path = str(self.get_parameter("trajectory_file").value)
+        cfg = self.inside_envelope(cfg, str(self.get_parameter("envelope_model").value), path)
         if path:
             traj = load_trajectory(path, qd_max=qd_max, qdd_max=qdd_max)
             self.stream, self.names = TrajectoryPlayer(traj), list(traj.names)
@@ -72,6 +87,25 @@ class ReferenceNode(Node):
         self.create_subscription(SafeStop, "safe_stop", self.on_safe_stop, SAFE_STOP_QOS)
         self.stopped = False         # a safe stop is active: the reference is the measured position
         self.resync = False          # the stop was cleared: restart from the next measurement
+
+    def inside_envelope(self, cfg, model_file, trajectory_file):
+        """``cfg`` with its limits cut to the envelope of ``model_file`` (unchanged for '')."""
+        if not model_file:
+            return cfg
+        if trajectory_file:
+            raise ReachsetError("envelope_model and trajectory_file: give one (a played file is not cut)")
+        from ..conformance import model as mdl
+        from ..conformance.envelope import reference_limits
+        env = mdl.load(model_file).envelope
+        if env is None:
+            raise ReachsetError(f"{model_file}: the model records no validated envelope (identify records one)")
+        limits, cut = reference_limits(env, list(JOINT_NAMES), q_min=cfg.q_min, q_max=cfg.q_max,
+                                       qd_max=cfg.qd_max, qdd_max=cfg.qdd_max)
+        for line in cut:
+            self.get_logger().warning(f"reference class cut to the validated envelope: {line}")
+        if not cut:
+            self.get_logger().info("the reference class lies inside the validated envelope's axes")
+        return dataclasses.replace(cfg, **limits)
 
     def on_safe_stop(self, msg):
         if msg.active and not self.stopped:

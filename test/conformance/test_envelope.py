@@ -152,3 +152,30 @@ def test_the_monitor_core_classifies_as_check_and_says_so_in_a_violations_reason
     assert "OUTSIDE the validated envelope" in ev.violation_note(True)
     assert "inside the validated envelope" in ev.violation_note(False)
     assert "records no validated envelope" in ev.violation_note(None)
+
+
+def test_reference_limits_cut_the_class_to_the_envelopes_axes_and_name_the_cuts():
+    """Issue 37.3: a reference class reaching beyond the envelope is cut to its position,
+    velocity and acceleration axes, each cut named (the part never validated); a class inside
+    is unchanged; a joint the envelope does not record keeps its limits, named."""
+    import numpy as np
+    import pytest
+    from reachset_ros.conformance.envelope import Axis, Envelope, JointEnvelope, axis_range, reference_limits
+    from reachset_ros.errors import ReachsetError
+    axes = {"q": Axis(origin=-0.5, cell=0.1, cells=10), "qd": Axis(origin=-0.3, cell=0.05, cells=10),
+            "qdd": Axis(origin=-1.0, cell=0.25, cells=10), "u": Axis(origin=-2.0, cell=0.4, cells=10)}
+    env = Envelope(joints={"a": JointEnvelope(axes=axes)}, dt=0.004, bins=8, dilation=1, hold=0)
+    assert axis_range(env.joints["a"], "qd") == pytest.approx((-0.3, 0.2))
+    inside, cut = reference_limits(env, ["a"], q_min=-0.4, q_max=0.4, qd_max=0.1, qdd_max=1.0)
+    assert cut == [] and inside["qd_max"].tolist() == [0.1] and inside["q_min"].tolist() == [-0.4]
+    lim, cut = reference_limits(env, ["a", "b"], q_min=[-2.0, -2.0], q_max=[2.0, 2.0], qd_max=0.7, qdd_max=2.0)
+    assert lim["q_min"].tolist() == pytest.approx([-0.5, -2.0]) and lim["q_max"].tolist() == pytest.approx([0.5, 2.0])
+    assert lim["qd_max"].tolist() == pytest.approx([0.2, 0.7])       # min(0.3, 0.2): symmetric references
+    assert lim["qdd_max"].tolist() == pytest.approx([1.0, 2.0])
+    assert len(cut) == 4 and cut[0].startswith("a: positions [-2, 2] rad, validated [-0.5, 0.5]")
+    assert "a: |qd| up to 0.7 rad/s, validated up to 0.2" in cut and cut[-1].startswith("b: not recorded")
+    skew = Envelope(joints={"a": JointEnvelope(axes={**axes, "qd": Axis(origin=0.1, cell=0.1, cells=3)})},
+                    dt=0.004, bins=8, dilation=1, hold=0)
+    with pytest.raises(ReachsetError, match="qd axis .* does not contain 0"):
+        reference_limits(skew, ["a"], q_min=-0.4, q_max=0.4, qd_max=0.1, qdd_max=1.0)
+    assert np.all(np.isfinite(lim["q_min"]))
