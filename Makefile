@@ -42,13 +42,16 @@ $(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/conformance/_tick.c
 venv: $(VENV)/.pkg
 
 # every test: the pure tests on TEST_JOBS processes (pytest-xdist; they share nothing but the CPU),
-# then the DDS tests on TEST_JOBS processes, each worker's nodes in a DDS domain of its own
-# (test/conftest.py); both phases always run. Times: README, "Tests".
+# then the DDS tests on DDS_JOBS processes (default one at a time; with more, each worker's nodes run
+# in a DDS domain of its own, test/conftest.py); both phases always run. Times: README, "Tests".
+# DDS_JOBS=2 is faster (docs/performance.md, "Test time") but two suites of nodes at once on two cores
+# exposed start-up races that one at a time does not (test_stop_hold_reset_... failed 2 of 5 runs).
 TEST_JOBS ?= 2
+DDS_JOBS ?= 1
 test: venv
 	@rc=0; \
 	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(TEST_JOBS) --dist worksteal || rc=$$?; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m dds -n $(TEST_JOBS) --dist worksteal || rc=$$?; \
+	$(PY) -m pytest $(PYTEST_ARGS) -m dds $(if $(filter-out 1,$(DDS_JOBS)),-n $(DDS_JOBS) --dist worksteal) || rc=$$?; \
 	exit $$rc
 
 # the quick pure tests (about two minutes): no DDS participant, no node process, none marked slow
