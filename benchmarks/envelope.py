@@ -18,7 +18,6 @@ bags come from ``reachset`` commands (printed with ``--verbose``); ``--work DIR`
 reuses them. Prints a markdown table; the last line names the candidate ``identify`` records.
 """
 import argparse
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -34,7 +33,10 @@ from reachset_ros.conformance import model as mdl  # noqa: E402
 from reachset_ros.conformance.theorem1 import check  # noqa: E402
 from reachset_ros.robot import lwa4p  # noqa: E402
 
-VERBOSE = False
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import real_data  # noqa: E402
+from real_data import cli  # noqa: E402  (the real-data protocol's runner of reachset commands)
+
 
 #: (label, bins, dilation, hold, grids)
 CANDIDATES = (
@@ -49,16 +51,6 @@ CANDIDATES = (
     ("grid 32 (q,qd)+(qd,u), hold k*", 32, 1, 125, (("q", "qd"), ("qd", "u"))),
     ("grid 16 (q,qd)+(qd,u)+(qd,qdd), hold k*", 16, 1, 125, (("q", "qd"), ("qd", "u"), ("qd", "qdd"))),
 )
-
-
-def cli(*args):
-    argv = [sys.executable, "-m", "reachset_ros.cli", *map(str, args)]
-    if VERBOSE:
-        print("$ reachset " + " ".join(map(str, args)), file=sys.stderr)
-    out = subprocess.run(argv, capture_output=True, text=True, cwd=REPO)
-    if out.returncode != 0:
-        raise SystemExit(f"reachset {args[0]} failed ({out.returncode}): {out.stderr.strip()}")
-    return out.stdout
 
 
 def bags(data, d):
@@ -99,13 +91,12 @@ def pct(a, b):
 
 
 def main():
-    global VERBOSE
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=None, help="the LWA-4P recordings (default: the shipped ones)")
     ap.add_argument("--work", default=None, help="keep (and reuse) the bags and models here")
     ap.add_argument("--verbose", action="store_true", help="print each reachset command on stderr")
     a = ap.parse_args()
-    VERBOSE = a.verbose
+    real_data.VERBOSE = a.verbose
     data = str(lwa4p.recordings_dir(a.data))
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(a.work or tmp)
@@ -134,7 +125,7 @@ def main():
                   f"{pct(r[wb]['held_out'], r[wb]['held_ticks'])}{wb_s} | "
                   f"{s['held_out']} of {s['held_ticks']} ({pct(s['held_out'], s['held_ticks'])}) | {pct(s['run80_out'], s['run80_ticks'])} | "
                   f"{pct(s['fam_out'], s['fam_ticks'])} |")
-            if VERBOSE:
+            if real_data.VERBOSE:
                 for n, x in r.items():
                     print(f"  {n}: {x}", file=sys.stderr)
         # (b) over every held-out run of 1-80, run 80 (a workspace sweep) included, for the model's envelope
