@@ -292,8 +292,11 @@ def frozen_observable_ns(refs, fault_ns):
     -------
     int or None
     """
-    hits = [int(r.stamps[(r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION)][0]) for r in refs
-            if np.any((r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION))]
+    hits = []
+    for r in refs:
+        fast = r.stamps[(r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION)]
+        if fast.size:
+            hits.append(int(fast[0]))
     return min(hits) if hits else None
 
 
