@@ -9,6 +9,12 @@ cases reached, issue 14.1), and the monitor node's whole per-tick work without R
 (``MonitorCore.add_y`` + ``add_u``: name mapping, pairing, gap counting, the tick, coverage),
 and the same with ``input_source: effort`` (``MonitorCore.add_joint_state``: u_p from the
 message's effort with Pinocchio, issue 15.3).
+
+``--node``: instead, the monitor node's whole tick (issue 38.4,
+:mod:`reachset_ros.nodes.monitor_status`) in this process: a real ``MonitorNode`` (rclpy, its
+publishers over DDS) whose subscription callbacks are called with real messages (those of
+``bench_monitor_load.py``), on both input routes; timed from the entry of the callback that
+completes a tick to its return, the status published, as the node times itself.
 """
 import argparse
 import time
@@ -42,10 +48,68 @@ def make_data(T, J=6, K=125):
     return model, thm, Y, U
 
 
+def run_node(route, T, period=0.0):
+    """The whole tick of a real MonitorNode in this process, on ``route`` (topic | effort), us.
+    ``period`` > 0: the ticks come every ``period`` s (the process sleeps between them, as the
+    node does between messages), else back to back."""
+    import os
+    import sys
+    import tempfile
+    from pathlib import Path
+    import rclpy
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import bench_monitor_load as bml
+    from reachset_ros.robot.dynamics import DEFAULT_URDF
+    wd = Path(tempfile.mkdtemp(prefix="bench_monitor_node_"))
+    bml.write_model(wd / "m.yaml", route)
+    args = ["--ros-args", "-p", f"model_file:={wd / 'm.yaml'}", "-p", "max_missing_ticks:=10000",
+            "-p", f"window_dir:={wd / 'windows'}"]
+    if route == "effort":
+        args += ["-p", "input_source:=effort", "-p", f"robot_urdf:={DEFAULT_URDF}"]
+    msgs = bml.messages(*bml.stream(T), route)
+    rclpy.init(args=args)
+    from reachset_ros.nodes.monitor_node import MonitorNode
+    node = MonitorNode()
+    d = np.empty(T)
+    try:
+        due = time.monotonic()
+        for k, (js, pi) in enumerate(msgs):
+            if period > 0:
+                due += period
+                time.sleep(max(0.0, due - time.monotonic()))
+            js.header.stamp.sec, js.header.stamp.nanosec = 1_000_000 + k // 250, 4_000_000 * (k % 250)
+            if pi is not None:
+                pi.header.stamp = js.header.stamp
+                node.on_joint_states(js)
+            t0 = time.perf_counter_ns()
+            node.on_joint_states(js) if pi is None else node.on_plant_input(pi)
+            d[k] = time.perf_counter_ns() - t0
+        if node.statuses != T or node.stop_active:
+            raise SystemExit(f"{route}: {node.statuses} statuses of {T} ticks, stop {node.stop_msg.reason}")
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    return d[K_WARM:] * 1e-3
+
+
+K_WARM = 135
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--ticks", type=int, default=30000)
+    ap.add_argument("--node", action="store_true", help="the monitor node's whole tick, both routes (issue 38.4)")
+    ap.add_argument("--period", type=float, default=0.0,
+                    help="with --node: a tick every PERIOD s (0: back to back); 0.004 is the monitor's rate")
     a = ap.parse_args()
+    if a.node:
+        import os
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        for route in ("topic", "effort"):
+            d = run_node(route, a.ticks, a.period)
+            print(f"monitor node's whole tick, {route} route, in-process, period {a.period * 1e3:g} ms, {len(d)} ticks: mean {d.mean():.1f} us, "
+                  f"p50 {np.percentile(d, 50):.1f} us, p99 {np.percentile(d, 99):.1f} us, max {d.max():.1f} us")
+        return
     J, K, T = 6, 125, a.ticks
     model, thm, Y, U = make_data(T, J, K)
 

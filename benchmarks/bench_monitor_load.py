@@ -1,6 +1,6 @@
 """monitor_node under CPU load: does every 4 ms tick still get its verdict, and how late?
 
-Run: .venv/bin/python benchmarks/bench_monitor_load.py [--seconds 20] [--burners 2] [--json]
+Run: .venv/bin/python benchmarks/bench_monitor_load.py [--seconds 20] [--burners 2] [--input topic|effort] [--json]
 
 Three processes talk over DDS (localhost): ``monitor_node`` (6 joints, k* = 125, the
 model of a real run), a publisher process that sends ``/joint_states`` and ``/plant_input``
@@ -28,7 +28,17 @@ scheduling (``/proc/sys/kernel/sched_autogroup_enabled`` = 1 here) CPU time is s
 between sessions first, so the burners compete as one program, as intended.
 
 Also reported: the publisher's wake-up lag (publish time - t_k), the path monitor+DDS alone
-(status received - publish time), and the monitor's own check time (``check_duration``).
+(status received - publish time), the monitor's own check time (``check_duration``: the
+compiled tick), and **the monitor node's whole tick** (issue 38.4,
+:mod:`reachset_ros.nodes.monitor_status`: from the entry of the callback that receives the
+message completing a tick to its return, the status published; timed in the node, read from
+its ``/diagnostics``). Each phase has a monitor process of its own, so the whole-tick times
+are that phase's.
+
+``--input effort``: the monitor runs with ``input_source: effort`` (the LWA-4P's URDF), and
+the publisher sends ``/joint_states`` with position, velocity and effort only, the effort
+being the feedback-linearizing torque of the stream's u_p (``robot.dynamics.feedback_linearization``),
+so the monitor recovers u_p by Pinocchio's ABA per message.
 """
 from __future__ import annotations
 
@@ -66,17 +76,43 @@ def stream(n, seed=0):
     return Y, U
 
 
-def write_model(path):
+def effort_source():
+    """The ``input_source: effort`` of ``--input effort``: the LWA-4P's URDF."""
+    from reachset_ros.robot.dynamics import DEFAULT_URDF
+    from reachset_ros.robot.effort import load_effort_input
+    return load_effort_input(str(DEFAULT_URDF))
+
+
+def write_model(path, route="topic"):
     from reachset_ros.conformance import model as mdl
     from reachset_ros.conformance.estimators import Estimator
     from reachset_ros.systems.plant import lwa4p_joint_plant
     js = {j: mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, HORIZON) for j in JOINTS}
     mdl.save(mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"),
-                                  HORIZON, js), path)
+                                  HORIZON, js, input_source=mdl.input_source_of(
+                                      effort_source() if route == "effort" else None)), path)
+
+
+def messages(Y, U, route):
+    """The ticks' messages: [(JointState, PlantInput or None)], stamps set by the publisher."""
+    from reachset_msgs.msg import PlantInput
+    from sensor_msgs.msg import JointState
+    if route != "effort":
+        return [(JointState(name=JOINTS, position=y.tolist()), PlantInput(name=JOINTS, acceleration=u.tolist()))
+                for y, u in zip(Y, U)]
+    from reachset_ros.robot.dynamics import create_data, feedback_linearization
+    model = effort_source().model
+    data, qd = create_data(model), np.zeros(len(JOINTS))
+    out = []
+    for y, u in zip(Y, U):
+        q = 0.3 + y          # away from the URDF's zero configuration
+        tau = feedback_linearization(model, data, q, qd, u) / model.torque_scale
+        out.append((JointState(name=JOINTS, position=q.tolist(), velocity=qd.tolist(), effort=tau.tolist()), None))
+    return out
 
 
 # ---------------------------------------------------------------- publisher process
-def publisher(seconds, out, seed):
+def publisher(seconds, out, seed, route):
     import rclpy
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -84,13 +120,15 @@ def publisher(seconds, out, seed):
     from sensor_msgs.msg import JointState
     n = int(round(seconds * 1e9 / DT_NS))
     Y, U = stream(n, seed)
+    msgs = messages(Y, U, route)
     rclpy.init()
     node = Node("load_bench_publisher")
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     js_pub = node.create_publisher(JointState, "joint_states", qos)
     pi_pub = node.create_publisher(PlantInput, "plant_input", qos)
     end = time.monotonic() + 30
-    while not (js_pub.get_subscription_count() and pi_pub.get_subscription_count()) and time.monotonic() < end:
+    while not (js_pub.get_subscription_count() and (route == "effort" or pi_pub.get_subscription_count())) \
+            and time.monotonic() < end:
         time.sleep(0.05)
     time.sleep(0.5)
     t0 = (time.time_ns() // DT_NS + 50) * DT_NS          # on the grid, 0.2 s from now: ready
@@ -100,13 +138,13 @@ def publisher(seconds, out, seed):
         delay = (t - time.time_ns()) * 1e-9
         if delay > 0:
             time.sleep(delay)
-        js = JointState(name=JOINTS, position=Y[k].tolist())
+        js, pi = msgs[k]
         js.header.stamp.sec, js.header.stamp.nanosec = divmod(t, 1_000_000_000)
-        pi = PlantInput(name=JOINTS, acceleration=U[k].tolist())
-        pi.header.stamp = js.header.stamp
         sent[k] = time.time_ns()
         js_pub.publish(js)
-        pi_pub.publish(pi)
+        if pi is not None:
+            pi.header.stamp = js.header.stamp
+            pi_pub.publish(pi)
     np.savez(out, t0=t0, sent=sent)
     time.sleep(1.0)        # let reliable delivery finish before the participant goes
     node.destroy_node()
@@ -146,7 +184,7 @@ class Listener:
                 self.diag = {kv.key: kv.value for kv in st.values}
 
 
-def run_phase(name, seconds, burners, workdir, listener, seed):
+def run_phase(name, seconds, burners, workdir, listener, seed, route):
     out = workdir / f"sent_{name}.npz"
     loadavg = os.getloadavg()[0]
     # the load: one program in its own session (as if started from another terminal), with
@@ -159,7 +197,7 @@ def run_phase(name, seconds, burners, workdir, listener, seed):
         load = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
     try:
         pub = subprocess.run([sys.executable, __file__, "--publisher", "--seconds", str(seconds),
-                              "--out", str(out), "--seed", str(seed)], capture_output=True, text=True,
+                              "--out", str(out), "--seed", str(seed), "--input", route], capture_output=True, text=True,
                              timeout=seconds + 120, start_new_session=True)
     finally:
         if load is not None:
@@ -193,7 +231,41 @@ def run_phase(name, seconds, burners, workdir, listener, seed):
         "monitor_path_ms": {"p50": pct(path, 50), "p99": pct(path, 99),
                             "max": float(path.max()) if len(path) else None},
         "check_us": {"p50": pct(dur * 1e6, 50), "p99": pct(dur * 1e6, 99), "max": float(dur.max() * 1e6)},
+        "route": route,
     }
+
+
+def monitored_phase(name, a, burners, workdir, listener, seed):
+    """One phase with a monitor process of its own: :func:`run_phase`, then the monitor's
+    diagnostics (its whole-tick times, counters) and the safe stops before the last tick."""
+    from reachset_ros import processes
+    params = {"model_file": str(workdir / "model.yaml"), "max_missing_ticks": 125,
+              "window_dir": str(workdir / "windows")}
+    if a.input == "effort":
+        from reachset_ros.robot.dynamics import DEFAULT_URDF
+        params |= {"input_source": "effort", "robot_urdf": str(DEFAULT_URDF)}
+    listener.diag, listener.stops[:] = {}, []
+    mon = processes.start("monitor_node", params, workdir, node_name=f"monitor_node_{name}")
+    try:
+        end = time.monotonic() + 30
+        while not listener.node.count_publishers("/conformance/status") and time.monotonic() < end:
+            time.sleep(0.05)
+        r = run_phase(name, a.seconds, burners, workdir, listener, seed, a.input)
+        end = time.monotonic() + 5         # the diagnostics (1 Hz) with every tick of the phase
+        while int(listener.diag.get("tick_wall_ticks", 0)) < r["statuses"] and time.monotonic() < end:
+            time.sleep(0.1)
+    finally:
+        processes.stop([mon])
+    # the watchdog's stop 0.5 s after the last tick is expected (the publisher ended)
+    r["safe_stops"] = [f"{m.kind}: {m.reason}" for m in listener.stops if m.active and m.kind != "not_ready" and
+                       m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec < r["last_stamp"]]
+    r["monitor_counters"] = dict(listener.diag)
+    for key, name in (("tick_wall", "whole_tick_us"), ("publish_wall", "publish_us")):   # None: not reported
+        r[name] = {q: float(listener.diag[f"{key}_us_{q}"]) if f"{key}_us_{q}" in listener.diag else None
+                   for q in ("p50", "p99", "max")}
+    while listener.node.count_publishers("/conformance/status") and time.monotonic() < end + 10:
+        time.sleep(0.05)             # the next phase's monitor is the only one
+    return r
 
 
 def main():
@@ -204,45 +276,26 @@ def main():
     ap.add_argument("--publisher", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--input", choices=("topic", "effort"), default="topic",
+                    help="the monitor's input route: /plant_input (topic) or input_source: effort")
     a = ap.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     if a.publisher:
-        return publisher(a.seconds, a.out, a.seed)
+        return publisher(a.seconds, a.out, a.seed, a.input)
     if "ROS_DOMAIN_ID" not in os.environ:
         import random
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(101, 200))
     import rclpy
-    from reachset_ros import processes
     workdir = Path(tempfile.mkdtemp(prefix="bench_monitor_load_"))
     print(f"work directory (logs, per-tick arrays): {workdir}", file=sys.stderr)
-    write_model(workdir / "model.yaml")
+    write_model(workdir / "model.yaml", a.input)
     rclpy.init()
     listener = Listener()
-    mon = processes.start("monitor_node", {"model_file": str(workdir / "model.yaml"), "max_missing_ticks": 125,
-                                        "window_dir": str(workdir / "windows")}, workdir)
     results = []
     try:
-        end = time.monotonic() + 30
-        while not listener.node.count_publishers("/conformance/status") and time.monotonic() < end:
-            time.sleep(0.05)
         for i, (name, burners) in enumerate((("quiet", 0), ("load", a.burners))):
-            results.append(run_phase(name, a.seconds, burners, workdir, listener, seed=i))
-            # the watchdog's stop 0.5 s after the last tick is expected (the publisher ended)
-            last = results[-1]["last_stamp"]
-            results[-1]["safe_stops"] = [f"{m.kind}: {m.reason}" for m in listener.stops if m.active and
-                                         m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec < last]
-            results[-1]["monitor_counters"] = dict(listener.diag)
-            from std_srvs.srv import Trigger
-            cli = listener.node.create_client(Trigger, "/monitor_node/reset")
-            if cli.wait_for_service(timeout_sec=10):
-                fut = cli.call_async(Trigger.Request())
-                end = time.monotonic() + 10
-                while not fut.done() and time.monotonic() < end:
-                    time.sleep(0.01)
-            listener.node.destroy_client(cli)
-            listener.stops.clear()
+            results.append(monitored_phase(name, a, burners, workdir, listener, seed=i))
     finally:
-        processes.stop([mon])
         listener.ex.shutdown()
         listener.thread.join(timeout=5)
         listener.node.destroy_node()
@@ -259,6 +312,9 @@ def main():
               f"max {lat['max']:.1f} ms; "
               f"publisher lag p99 {lag['p99']:.2f} / max {lag['max']:.1f} ms; monitor+DDS p99 {path['p99']:.2f} / "
               f"max {path['max']:.1f} ms; check p50 {chk['p50']:.0f} / p99 {chk['p99']:.0f} / max {chk['max']:.0f} us; "
+              f"WHOLE TICK ({r['route']}) p50 {r['whole_tick_us']['p50']} / p99 {r['whole_tick_us']['p99']} / "
+              f"max {r['whole_tick_us']['max']} us (of which publishing the status p50 {r['publish_us']['p50']} / "
+              f"p99 {r['publish_us']['p99']} us); "
               f"non-conformant {r['non_conformant']}; safe stops {r['safe_stops'] or 'none'}")
 
 

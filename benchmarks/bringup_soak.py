@@ -1,6 +1,6 @@
 """Bring-ups that run: `reachset up` from a demo's outputs, left running, with every stop counted.
 
-Run: .venv/bin/python benchmarks/bringup_soak.py --workdir W [--runs 5] [--seconds 600] [--json]
+Run: .venv/bin/python benchmarks/bringup_soak.py --workdir W [--runs 5] [--seconds 600] [--json] [--keep DIR]
 
 W is a `reachset demo --workdir W` directory: each run is the command the demo printed,
 ``reachset up --sim --params-file W/bringup.params.yaml --model W/monitor_model.yaml`` (issue
@@ -48,11 +48,15 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                    help="keep each run's `up` work directory (logs, windows) under DIR (default: a temporary one)")
     args = ap.parse_args(argv)
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
+        base = Path(tmp) if args.keep is None else args.keep
+        base.mkdir(parents=True, exist_ok=True)
         for i in range(args.runs):
-            r = one_run(args.workdir.resolve(), args.seconds, Path(tmp) / f"up{i + 1}")
+            r = one_run(args.workdir.resolve(), args.seconds, base / f"up{i + 1}")
             runs.append(r)
             if not args.json:
                 print(f"run {i + 1}: stops after the start-up hold {r['stops_after_start_up']} "

@@ -48,8 +48,9 @@ ROWS = {
     "G19": "the gains that run are certified for the sets the running monitor checks",
     "G20": "the identification data cover the reference class on every joint, in calibration folds large enough "
            "to judge",
-    "G21": "every tick is classified inside or outside the envelope of the identification data (an empirical "
-           "record of where the data were, not a guarantee)",
+    "G21": "every tick is classified inside or outside the envelope of the identification data, and the part of "
+           "the certified reference class outside it is named (an empirical record of where the data were, not a "
+           "guarantee)",
     "G22": "online, the monitor says when the data are outside the envelope, and a violation's stop says whether "
            "they were inside",
 }
@@ -82,3 +83,32 @@ def refused(row: str, message: str) -> GuaranteeRefused:
     lines = str(message).splitlines() or [""]
     lines[0] = f"{lines[0]} {tag(row)}"
     return GuaranteeRefused("\n".join(lines), row=row)
+
+
+def envelope_note(notes, inside: str) -> str:
+    """One line naming what :func:`~reachset_ros.conformance.envelope.unvalidated` found (row
+    G21's claim, worded once), used by every caller (the gain gate's
+    :meth:`~reachset_ros.systems.gains.PairCertificate.envelope_note`, ``reachset synthesize``).
+
+    Parameters
+    ----------
+    notes : dict or None
+        ``{joint: lines}`` from :func:`~reachset_ros.conformance.envelope.unvalidated`; None
+        when the model records no envelope.
+    inside : str
+        What lies inside the axes when no line was found, with its verb (e.g. ``"the
+        reference class and R*_u lie"``).
+
+    Returns
+    -------
+    str
+        ``"envelope: none recorded"``, ``"envelope: <inside> inside the validated envelope's
+        axes"``, or ``"envelope: NOT VALIDATED, the model was never validated on: "``
+        and the lines joined by ``"; "``.
+    """
+    if notes is None:
+        return "envelope: none recorded"
+    lines = [line for v in notes.values() for line in v]
+    if not lines:
+        return f"envelope: {inside} inside the validated envelope's axes"
+    return "envelope: NOT VALIDATED, the model was never validated on: " + "; ".join(lines)

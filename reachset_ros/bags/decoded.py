@@ -104,7 +104,7 @@ def read_topic_rows(paths, topic, fields, joints=None):
     duplicate stamps dropped. Returns ``None`` when no bag has the topic.
     """
     from rosbags.rosbag2 import Reader  # lazy: rosbags.rosbag2's start-up (issue 38.1)
-    ts = typestore()
+    ts = None                           # the typestore (0.1 s: rosbags' stores) only for a bag with the topic
     cols, found = {}, False
     for p in paths:
         path = Path(p)
@@ -115,6 +115,7 @@ def read_topic_rows(paths, topic, fields, joints=None):
                 if not conns:
                     continue
                 found = True
+                ts = ts or typestore()
                 for _topic, _t, msg in _decoded(reader, conns, ts, path):
                     st = header_stamp_ns(msg)
                     arrs = [np.asarray(getattr(msg, f), float) for f in fields]

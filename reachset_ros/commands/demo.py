@@ -24,11 +24,11 @@ import numpy as np
 
 from .. import processes
 from ..bags.messages import BRAKE_TOPIC, FAULT_ONSET_TOPIC, JOINT_STATES, SAFE_STOP_TOPIC, STATUS_TOPIC
-from ..bags import read_messages
+from ..bags import read_messages, read_references
 from ..domain import pick_domain_id
 from ..errors import ReachsetError
 from ..plots import demo_plots
-from ..sim.campaign import FROZEN_MOTION
+from ..sim.campaign import FROZEN_MOTION, frozen_observable_ns
 from ..sim.safe_stop import REST_WITHIN_S, TRAVEL_WITHIN_RAD
 from ..systems.stopping import rest_after_stop
 from . import emit, help_of
@@ -200,8 +200,6 @@ def frozen_window(record, fault, fault_ns, stop_ns):
     no promise can be judged). Empty for any other fault."""
     if fault[0] != "frozen" or not fault_ns:
         return {}
-    from ..bags import read_references
-    from ..sim.campaign import frozen_observable_ns
     seen = frozen_observable_ns(read_references([record], joints=[fault[1]]).get(fault[1], []), fault_ns)
     late = (stop_ns - seen) / 1e6 if (seen is not None and stop_ns is not None and stop_ns >= seen) else None
     return {"fault_observable_ns": seen, "detection_from_observable_ms": late}

@@ -7,7 +7,9 @@ each node's copy of the whole pair. ``set NAME=VALUE ...`` (one value for every 
 ``eso_input=previous|current``) sets them on both nodes, all or none, through the pair's gate
 (:func:`reachset_ros.nodes.pair_gate.set_pair`: each node certifies the pair that will run, and
 a node that accepted is set back when the other refuses). Exit status 0 when set, 1 when
-refused (one line: which node and why; nothing changed), 2 on bad input (nothing sent).
+refused (one line: which node and why; nothing changed), 2 on bad input (nothing sent). A set
+that is applied also says which parts of the class the gate certifies the model was never
+validated on (issue 37.3: ``envelope``, naming, not refusing), or ``envelope: none recorded``.
 """
 import sys
 
@@ -67,11 +69,13 @@ def run(args):
     with operator(args) as op:
         ok, why = op.set_gains(values, reason=args.reason, timeout=args.timeout)
         gains = op.get_gains(timeout=args.timeout) if ok else None
+        envelope = op.envelope(timeout=args.timeout) if ok else None
     if not ok:
         why = " ".join(why.split())
         if args.json:
             emit(args, {"applied": False, "reason": why})
         print(f"reachset gains set: refused: {why}", file=sys.stderr)
         return 1
-    emit(args, {"applied": True, "gains": gains}, "set on observer_node and controller_node\n" + human(gains))
+    emit(args, {"applied": True, "gains": gains, "envelope": envelope},
+         "set on observer_node and controller_node\n" + human(gains) + "\n" + envelope["note"])
     return 0

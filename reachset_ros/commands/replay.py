@@ -39,35 +39,49 @@ def segment_breaks(segments):
     return {b for (_, b), (c, _) in zip(segments, segments[1:]) if b == c}
 
 
-class _EnvelopeCount:
-    """The monitor's envelope classification of replayed ticks
-    (:class:`~reachset_ros.conformance.envelope.EnvelopeTracker`), counted per joint as
-    ``check`` counts them (:func:`~reachset_ros.conformance.envelope.tick_counts`)."""
+def _tick_all(mon, stamps, Y, U, cut):
+    """Every tick of a group through the monitor ``mon``, reset before each tick in ``cut``.
 
-    def __init__(self, env, names):
-        self.tracker = None if env is None or any(n not in env.joints for n in names) else \
-            envelope.EnvelopeTracker(env, names)
-        self.outside, self.inside_viol = np.zeros(len(names), np.int64), np.zeros(len(names), np.int64)
-        self.classified = np.zeros(len(names), np.int64)
+    Returns per tick and joint the status (index into ``Monitor.STATUS``), the test cases
+    checked and the set use, and per tick its duration in seconds. A :class:`Monitor` runs each
+    stretch between resets in one :meth:`~reachset_ros.conformance.monitor.Monitor.tick_many`
+    (with the compiled kernel: its tick function in a C loop, each tick timed there); a
+    :class:`JointMonitor` tick by tick.
+    """
+    T, J = Y.shape[:2]
+    status, checked = np.zeros((T, J), np.int8), np.zeros((T, J), np.int64)
+    use, secs = np.full((T, J), np.nan), np.zeros(T)
+    bounds = [0, *sorted(c for c in cut if 0 < c < T), T]
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if a > 0:
+            mon.reset()
+        if isinstance(mon, Monitor):
+            r = mon.tick_many(stamps[a:b], Y[a:b], U[a:b])
+            status[a:b], checked[a:b], use[a:b], secs[a:b] = r["status"], r["checked"], r["use"], r["seconds"]
+            continue
+        for i in range(a, b):
+            t0 = time.perf_counter()
+            r = mon.tick(int(stamps[i]), Y[i], U[i])
+            secs[i] = time.perf_counter() - t0
+            status[i, 0], checked[i, 0], use[i, 0] = Monitor.STATUS.index(r.status), r.checked, r.use
+    return status, checked, use, secs
 
-    def reset(self):
-        if self.tracker is not None:
-            self.tracker.reset()
 
-    def tick(self, stamp, y, u, violating):
-        if self.tracker is None:
-            return
-        out = self.tracker.tick(stamp, y, u)
-        valid = bool(np.isfinite(y).all() and np.isfinite(u).all())
-        self.classified += valid
-        self.outside += out
-        self.inside_viol += np.asarray(violating, dtype=bool) & ~out
-
-    def counts(self, j):
-        if self.tracker is None:
-            return envelope.tick_counts(None, None, None, None)
-        return {"outside_envelope_ticks": int(self.outside[j]), "violations_inside_envelope": int(self.inside_viol[j]),
-                "classified_ticks": int(self.classified[j])}
+def _envelope_counts(env, names, stamps, Y, U, cut, violating):
+    """Per joint the envelope's counts of the replayed ticks (``check``'s
+    :func:`~reachset_ros.conformance.envelope.tick_counts` keys) from the monitor's classification
+    (:func:`~reachset_ros.conformance.envelope.track`, restarted at each tick of ``cut`` as the
+    monitor is reset there); None when the model records no envelope for some joint."""
+    if env is None or any(n not in env.joints for n in names):
+        return [envelope.tick_counts(None, None, None, None) for _ in names]
+    T = len(stamps)
+    bounds = [0, *sorted(c for c in cut if 0 < c < T), T]
+    out = np.concatenate([envelope.track(env, names, stamps[a:b], Y[a:b], U[a:b]) for a, b in zip(bounds[:-1],
+                                                                                                 bounds[1:])])
+    classified = int((np.isfinite(Y).all(axis=1) & np.isfinite(U).all(axis=1)).sum())
+    return [{"outside_envelope_ticks": int(out[:, j].sum()),
+             "violations_inside_envelope": int((violating[:, j] & ~out[:, j]).sum()),
+             "classified_ticks": classified} for j in range(len(names))]
 
 
 def replay_joints(model, series, thm=None, uses=None):
@@ -94,40 +108,20 @@ def replay_joints(model, series, thm=None, uses=None):
     for group in groups:
         ms = [mms[names.index(n)] for n in group]
         mon = Monitor(ms) if all(m.scalar for m in ms) else JointMonitor(ms[0])
-        s0 = series[group[0]]
-        Y = np.stack([series[n].y for n in group], axis=1)
-        U = np.stack([series[n].u for n in group], axis=1)
-        viol = np.zeros(len(group), dtype=np.int64)
-        env = _EnvelopeCount(model.envelope, group)             # issue 37: the monitor's classification
-        first = [None] * len(group)
-        checks = np.zeros(len(group), dtype=np.int64)
-        d = np.empty(len(s0.stamps))
-        use = np.full((len(s0.stamps), len(group)), np.nan)
+        stamps = np.asarray(series[group[0]].stamps, dtype=np.int64)
+        Y = np.stack([np.reshape(series[n].y, len(stamps)) if ms[0].scalar else series[n].y for n in group], axis=1)
+        U = np.stack([np.reshape(series[n].u, len(stamps)) if ms[0].scalar else series[n].u for n in group], axis=1)
         cut = breaks[group[0]]
-        for i in range(len(s0.stamps)):
-            t0 = time.perf_counter()
-            if i in cut:
-                mon.reset()
-                env.reset()
-            r = mon.tick(int(s0.stamps[i]), Y[i], U[i])
-            d[i] = time.perf_counter() - t0
-            if isinstance(r, dict):
-                status, checked, use[i] = r["status"], r["checked"], r["use"]
-            else:
-                status, checked, use[i] = [r.status], [r.checked], r.use
-            env.tick(int(s0.stamps[i]), Y[i], U[i], [st == "violation" for st in status])
-            for j, st in enumerate(status):
-                checks[j] += checked[j]
-                if st == "violation":
-                    viol[j] += 1
-                    if first[j] is None:
-                        first[j] = int(s0.stamps[i])
-        durs.append(d)
+        status, checked, use, secs = _tick_all(mon, stamps, Y, U, cut)
+        durs.append(secs)
+        violating = status == Monitor.STATUS.index("violation")
+        env = _envelope_counts(model.envelope, group, stamps, Y, U, cut, violating)
         for j, n in enumerate(group):
             starts = test_case_starts(series[n].segments, model.estimator.history)[0]
             finite = use[:, j][np.isfinite(use[:, j])]
-            out[n] = {"violations": int(viol[j]), "first_violation_ns": first[j],
-                      "test_cases": int(len(starts)), "checks": int(checks[j]), **env.counts(j),
+            hit = np.flatnonzero(violating[:, j])
+            out[n] = {"violations": int(len(hit)), "first_violation_ns": int(stamps[hit[0]]) if len(hit) else None,
+                      "test_cases": int(len(starts)), "checks": int(checked[:, j].sum()), **env[j],
                       "largest_set_use": float(finite.max()) if len(finite) else None}
             if uses is not None:
                 uses[n] = use[:, j].copy()

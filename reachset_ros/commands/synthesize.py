@@ -236,4 +236,16 @@ def run(args):
                                   + ("" if cal["certified"] else f"; NOT CERTIFIED: R*_u was synthesised for inflation "
                                      f"{cal['synthesised_for_inflation']:g} (synthesize again with --inflation "
                                      f"{cal['inflation']:g})"))
-    emit(args, result, _human(bs.results) + weak + cal + (f"\nmodel written to {res.model}" if res.model else ""))
+    emit(args, result, _human(bs.results) + weak + cal + _envelope_human(res.envelope)
+         + (f"\nmodel written to {res.model}" if res.model else ""))
+
+
+def _envelope_human(env):
+    """The envelope's lines of the text output: the note, then one line per part of the reference
+    class the model was never validated on (issue 37.3; the ``--json`` ``envelope`` object)."""
+    if env is None:
+        return ""
+    lines = [x for v in (env.get("unvalidated") or {}).values() for x in v]
+    if lines:
+        return "\nenvelope: NOT VALIDATED, the model was never validated on:" + "".join(f"\n  {x}" for x in lines)
+    return "\n" + env["note"] + ("" if env.get("recorded") else f" ({env.get('reason', '')})")

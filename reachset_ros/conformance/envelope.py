@@ -41,7 +41,8 @@ from ..errors import ReachsetError
 
 __all__ = ["ACCELERATION_LAG", "FEATURES", "FORMAT", "HISTORY", "VELOCITY_LAG", "Envelope", "EnvelopeTracker",
            "JointEnvelope", "OUTSIDE_ENVELOPE", "Packed", "classify_series", "features", "fit", "from_dict", "held_outside", "inside", "inside_packed", "pack",
-           "outside_reason", "series_features", "summary", "tick_counts", "to_dict", "violation_note"]
+           "outside_reason", "series_features", "summary", "tick_counts", "to_dict", "track", "violation_note",
+           "ClassBounds", "unvalidated"]
 
 FORMAT = "reachset_ros/envelope/1"
 #: the features of a tick, in this order (module docstring)
@@ -387,6 +388,48 @@ class EnvelopeTracker:
         return self._since <= self.env.hold
 
 
+def track(env: Envelope, names, stamps, Y, U):
+    """What a new :class:`EnvelopeTracker` of ``names`` returns tick by tick for these ticks, in
+    array operations (``reachset replay``; the tracker's own :meth:`~EnvelopeTracker.tick` is the
+    monitor node's).
+
+    The tracker's rules: a stamp step outside [0.5, 1.5] dt from the previous valid tick resets
+    it, a tick with a non-finite sample of any joint resets it and is not classified (False); the
+    features of a tick are :func:`features` of the positions of its run (the ticks since the last
+    reset), classified by :func:`inside_packed`; a tick is held outside while one of the last
+    ``hold`` ticks of its run was outside. The same floating-point operations on the same values,
+    so the same verdicts (``test/conformance/test_envelope_track.py``).
+
+    Returns
+    -------
+    ndarray of bool, (T, J)
+    """
+    stamps = np.asarray(stamps, dtype=np.int64)
+    T, J = len(stamps), len(names)
+    Y = np.asarray(Y, dtype=np.float64).reshape(T, J)
+    U = np.asarray(U, dtype=np.float64).reshape(T, J)
+    if T == 0:
+        return np.zeros((0, J), dtype=bool)
+    dt, hold = env.dt, env.hold
+    valid = np.isfinite(Y).all(axis=1) & np.isfinite(U).all(axis=1)
+    step = np.diff(stamps) * 1e-9                  # as (stamp_ns - last_stamp) * 1e-9, int to float
+    gap = ~((0.5 * dt <= step) & (step <= 1.5 * dt))
+    start = np.concatenate([[True], (gap & valid[:-1]) | ~valid[:-1]])      # a reset before the tick
+    t = np.arange(T)
+    run = np.maximum.accumulate(np.where(start, t, 0))                       # first tick of t's run
+
+    def lagged(lag):
+        src = t - lag
+        ok = src >= run
+        return np.where(ok[:, None], Y[np.maximum(src, 0)], np.nan)
+
+    F = features(Y, lagged(VELOCITY_LAG), lagged(ACCELERATION_LAG), lagged(2 * ACCELERATION_LAG), U, dt)
+    out = ~inside_packed(pack([env.joints[n] for n in names]), F) & valid[:, None]   # (T, J)
+    last = np.maximum.accumulate(np.where(out, t[:, None], -1), axis=0)      # the last tick outside so far
+    held = (last >= run[:, None]) & (t[:, None] - last <= hold)
+    return held & valid[:, None]
+
+
 # ------------------------------------------------------------------ the model file's ``envelope`` block
 def _rows(occ):
     return ["".join("1" if v else "0" for v in row) for row in occ]
@@ -541,3 +584,98 @@ def reference_limits(env: Envelope, names, *, q_min, q_max, qd_max, qdd_max):
                 cut.append(f"{name}: |{feature}| up to {out[key][j]:.4g} {unit}, validated up to {bound:.4g}")
                 out[key][j] = bound
     return out, cut
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClassBounds:
+    """What a reference class and its certificate let one joint do (checked by :func:`unvalidated`).
+
+    Attributes
+    ----------
+    qdd_max : float, optional
+        Bound of the reference's ``|qdd_d|``, rad/s^2 (the class' ``qdd_max``, or ``u_ff``: the
+        bound of U_ff the certificate covers); ``qdd_source`` names which.
+    u : (float, float), optional
+        The interval of the plant input u_p, rad/s^2: the certified R*_u (``u_source``).
+    qd_max : float, optional
+        Bound of ``|qd|``, rad/s, when the class has one.
+    q : (float, float), optional
+        The class' position box ``(q_min, q_max)``, rad, when known.
+
+    A bound left None is not checked (not known to the caller: nothing is guessed).
+    """
+
+    qdd_max: float = None
+    qdd_source: str = "qdd_max"
+    u: tuple = None
+    u_source: str = "R*_u"
+    qd_max: float = None
+    q: tuple = None
+
+
+def _beyond(name, feature, what, lo, hi, axis):
+    """The line naming ``[lo, hi]`` (the class' reach of ``feature``) beyond ``axis``, or None."""
+    vlo, vhi = axis
+    if lo >= vlo and hi <= vhi:
+        return None
+    return (f"{name}: {what} but the model was validated on {feature} in [{vlo:.4g}, {vhi:.4g}]")
+
+
+def unvalidated(env: Envelope, bounds):
+    """The parts of a reference class the model was never validated on, per joint (issue 37.3).
+
+    A conformance model covers the behaviours it was tested on (paper, Def. 4): its sets hold
+    for the recorded test cases, and the certificate of a reference class (R*_u inside U_p,
+    R*_e) is a statement about the model, which says nothing of motion its identification data
+    never contained. This compares what the class and its certificate let each joint do with
+    the envelope's axes (:func:`axis_range`, the training range widened by the dilation): the
+    reference's ``|qdd_d|`` with the ``qdd`` axis (the measured acceleration follows the
+    reference within R_e), the certified R*_u with the ``u`` axis (u_p), and, when given,
+    ``|qd|`` and the position box with the ``qd`` and ``q`` axes. The occupancy grids are not
+    consulted (a class is bounds on single features, not combinations), so an empty answer
+    means "inside every axis", not "every combination was seen". Naming, not refusing: the
+    callers report the lines (the gain gate, ``reachset synthesize``).
+
+    Parameters
+    ----------
+    env : Envelope
+        The model's envelope (a model without one: the caller says "envelope: none recorded").
+    bounds : dict
+        ``{joint: ClassBounds}``.
+
+    Returns
+    -------
+    dict
+        ``{joint: tuple of str}`` for every joint of ``bounds``: one line per feature whose
+        class reach leaves the validated range, naming the joint, the feature, the class' value
+        and the validated range (e.g. ``"arm_2_joint: u_p reaches 24.1 rad/s^2 (R*_u = [-24.1,
+        23.9]) but the model was validated on u_p in [-3.2, 3.1]"``); one line for a joint the
+        envelope does not record; an empty tuple when the class lies inside every axis.
+    """
+    out = {}
+    for name, b in bounds.items():
+        je = env.joints.get(name)
+        if je is None:
+            out[name] = (f"{name}: not recorded by the envelope (the model was validated on no data of this joint)",)
+            continue
+        lines = []
+        if b.q is not None:
+            lo, hi = float(b.q[0]), float(b.q[1])
+            lines.append(_beyond(name, "q", f"q spans [{lo:.4g}, {hi:.4g}] rad (the class' position box)", lo, hi,
+                                 axis_range(je, "q")))
+        if b.qd_max is not None:
+            v = abs(float(b.qd_max))
+            lines.append(_beyond(name, "qd", f"|qd| reaches {v:.4g} rad/s (qd_max)", -v, v, axis_range(je, "qd")))
+        if b.qdd_max is not None:
+            v = abs(float(b.qdd_max))
+            lines.append(_beyond(name, "qdd", f"|qdd_d| reaches {v:.4g} rad/s^2 ({b.qdd_source})", -v, v,
+                                 axis_range(je, "qdd")))
+        if b.u is not None:
+            lo, hi = float(b.u[0]), float(b.u[1])
+            vlo, vhi = axis_range(je, "u")
+            peak = lo if vlo - lo > hi - vhi else hi
+            lines.append(_beyond(name, "u_p", f"u_p reaches {peak:.4g} rad/s^2 ({b.u_source} = [{lo:.4g}, "
+                                              f"{hi:.4g}])", lo, hi, (vlo, vhi)))
+        out[name] = tuple(x for x in lines if x is not None)
+    return out
+

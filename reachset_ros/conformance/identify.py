@@ -146,6 +146,21 @@ def make_sound(plant, thm, devs, c_w, c_v, alpha_w, alpha_v):
     raise InfeasibleError("conformance could not be restored after 60 inflation steps")
 
 
+def prefetch_solver():
+    """Import the LP solver (``scipy.optimize``, 0.3 s) in a background thread and return it.
+
+    ``reachset identify`` starts it before the Theorem-1 sweep, whose compiled kernel runs
+    without the GIL, so the import overlaps the sweep instead of following it (issue 38.2).
+    :func:`identify_sets` imports the module as before; Python's import lock makes it wait for
+    a prefetch still running. The thread is a daemon: an error ends the command before it."""
+    import importlib
+    import threading
+    t = threading.Thread(target=importlib.import_module, args=("scipy.optimize",), name="prefetch-scipy.optimize",
+                         daemon=True)
+    t.start()
+    return t
+
+
 def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower=None, horizon=None,
                   cost_vector=None):
     """Reachset-conformant identification as a linear programme (HiGHS).
@@ -183,23 +198,26 @@ def identify_sets(plant, thm, devs, *, centers="zero", weights=None, alpha_lower
 def stable_horizon(plant, thm, devs, rtol=0.01, **kw):
     """Remark 3: the smallest horizon beyond which the identified alphas change < rtol.
 
-    Identifies for k* on a grid up to the full horizon; returns (k, table) where table
-    lists (k*, alpha_W, alpha_V).
+    On a grid of horizons up to the full one K: the smallest grid k* such that the alphas
+    identified with k* and with every larger grid horizon are within ``rtol`` of those at K.
+    The grid is walked down from K and stops at the first horizon whose alphas differ (the
+    smaller ones cannot change the answer), so data whose sets still change near K cost two
+    LPs, not one per grid point. Returns (k, table) where table lists (k*, alpha_W, alpha_V)
+    of the horizons identified, in increasing k*.
     """
     K = len(thm.Dp) - 1
     grid = sorted({k for k in (0, 1, 2, 5, 10, 25, 50, 75, 100, 125, 150, 200, 250) if k <= K} | {K})
-    table = []
-    for k in grid:
+    table, final, scale, settled = [], None, None, K
+    for k in reversed(grid):
         s = identify_sets(plant, thm, devs, horizon=k, **kw)
-        table.append((k, s.alpha_w.tolist(), s.alpha_v.tolist()))
-    final = np.concatenate([table[-1][1], table[-1][2]])
-    scale = np.maximum(np.abs(final), 1e-12)
-    settled = K
-    for k, aw, av in reversed(table):
-        if np.all(np.abs(np.concatenate([aw, av]) - final) <= rtol * scale):
-            settled = k
-        else:
+        table.insert(0, (k, s.alpha_w.tolist(), s.alpha_v.tolist()))
+        alphas = np.concatenate([s.alpha_w, s.alpha_v])
+        if final is None:
+            final = alphas
+            scale = np.maximum(np.abs(final), 1e-12)
+        if not np.all(np.abs(alphas - final) <= rtol * scale):
             break
+        settled = k
     return settled, table
 
 

@@ -19,13 +19,19 @@ advances one tick at a time, produce bitwise identical deviations and hence iden
 verdicts.
 
 The compiled kernels (``reachset_ros/conformance/_tick.c``) are loaded here with ctypes:
-the one place that loads them. Two functions, both exact copies of numpy code paths of
-this package (same floating-point operations in the same order, compiled with
-``-ffp-contract=off``), so results are bitwise equal whether or not the kernel is used:
+the one place that loads them. Each is an exact copy of a numpy code path of this package
+(same floating-point operations in the same order, compiled with ``-ffp-contract=off``), so
+results are bitwise equal whether or not the kernel is used:
 
 * ``reachset_sweep_block``: one block of :func:`sweep` (numpy: :func:`_sweep_block`);
+* ``reachset_sweep_extremes``: :func:`sweep` fused with Theorem 1's reduction to the largest
+  ``N_k y_a`` and ``-N_k y_a`` (:func:`sweep_extremes`; numpy: the visitor of
+  :func:`reachset_ros.conformance.theorem1.deviation_extremes`; maxima are exact, so their
+  order does not matter, but for the sign of a zero maximum where +0.0 and -0.0 are both the
+  largest deviation of a step, which numpy's SIMD reductions leave unspecified too);
 * ``reachset_monitor_tick``: one tick of :class:`reachset_ros.conformance.monitor.Monitor`
-  (numpy: ``Monitor._tick_numpy``).
+  (numpy: ``Monitor._tick_numpy``); ``reachset_monitor_ticks`` calls it for many ticks in a row
+  (``Monitor.tick_many``, ``reachset replay``).
 
 ``LIB`` is None when the shared library was not built (e.g. no C compiler at install time)
 or the environment variable ``REACHSET_NO_KERNEL`` is set; callers then use numpy.
@@ -47,8 +53,10 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 
 
-#: the layout of ``tick_state`` in ``_tick.c`` this module's mirror expects (``reachset_tick_abi``)
-TICK_ABI = 2
+#: the layout of ``tick_state`` in ``_tick.c`` this module's mirror expects and the exported
+#: functions' signatures (``reachset_tick_abi``; 3: ``reachset_sweep_extremes`` and
+#: ``reachset_monitor_ticks`` added)
+TICK_ABI = 3
 
 
 def _load():
@@ -69,6 +77,11 @@ def _load():
             lib.reachset_monitor_tick.restype = _I
             lib.reachset_sweep_block.argtypes = [_P, _P, _P, _P, _I, _I, _I, _I, _P, _P, _P, _P, _I, _I, _P, _P]
             lib.reachset_sweep_block.restype = _I
+            lib.reachset_sweep_extremes.argtypes = [_P, _P, _P, _P, _I, _I, _I, _I, _P, _P, _P, _P, _I, _I, _P,
+                                                    _P, _P, _P, _P]
+            lib.reachset_sweep_extremes.restype = _I
+            lib.reachset_monitor_ticks.argtypes = [_P, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P]
+            lib.reachset_monitor_ticks.restype = _I
             return lib, str(path)
     return None, None
 
@@ -318,3 +331,56 @@ def _sweep_block_compiled(plant, y, u, starts, rem, horizon, visit, X):
         m = starts[:Mk]
         visit(k, m, m + k, ya[k, :, :Mk])
 
+
+
+def sweep_extremes(plant, estimator, y, u, segments, horizon, normals):
+    """All sequential test cases reduced to Theorem 1's left-hand sides in the compiled kernel.
+
+    The deviations :func:`sweep` computes, multiplied by the normals ``N_k`` of each step
+    (``normals[k]``, shape (q_k, ny)) and reduced to their largest value and the largest of
+    their negation over the test cases, without storing them: ``reachset_sweep_extremes`` in
+    ``_tick.c``, the same operations in the same order as the numpy path
+    (:func:`~reachset_ros.conformance.theorem1.deviation_extremes`' visitor: ``matvec``, ``max``,
+    ``np.maximum`` folded in the test cases' order), so the result is the same to the bit.
+    The GIL is released while it runs (ctypes), so joints run in parallel threads.
+
+    Returns
+    -------
+    (maxp, maxm, test_cases, checks) or None
+        ``maxp``/``maxm``: per k an array (q_k,), ``-inf`` where no test case reaches k;
+        None when the kernel is not loaded or does not cover the plant (callers use numpy).
+    """
+    n, nu, ny = plant.A.shape[0], plant.B.shape[1], plant.C.shape[0]
+    if LIB is None or max(n, nu, ny) > 64:
+        return None
+    y, u = as_2d(y), as_2d(u)
+    starts, ends = test_case_starts(segments, estimator.history)
+    q = np.array([0] + [len(N) for N in normals[:horizon + 1]], dtype=np.int64)
+    qoff = np.cumsum(q)
+    maxp, maxm = np.full(int(qoff[-1]), -np.inf), np.full(int(qoff[-1]), -np.inf)
+    M = len(starts)
+    checks = 0
+    if M:
+        order = np.argsort(-(ends - starts), kind="stable")
+        starts, rem = np.ascontiguousarray(starts[order], np.int64), np.ascontiguousarray((ends - starts)[order],
+                                                                                            np.int64)
+        f8 = lambda a: np.ascontiguousarray(a, dtype=np.float64)   # noqa: E731
+        A, B, C, D = f8(plant.A), f8(plant.B), f8(plant.C), f8(plant.D)
+        y, u = f8(y), f8(u)
+        X = f8(estimator.estimate(plant, y, u, starts))
+        N = f8(np.vstack([np.reshape(Nk, (-1, ny)) for Nk in normals[:horizon + 1]]))
+        p = ptr
+        args = (p(A), p(B), p(C), p(D),         # const double *A, *B, *C, *D: the plant
+                int(bool(np.any(plant.D))),     # int64_t has_d: D is not zero
+                n, nu, ny,                      # int64_t n, nu, ny: states, inputs, outputs
+                p(y), p(u),                     # const double *y, *u: the recording
+                p(starts), p(rem),              # const int64_t *starts, *rem: the test cases
+                M, int(horizon),                # int64_t M, horizon: test cases, largest step
+                p(X),                           # double *X: initial states (overwritten)
+                p(N), p(qoff),                  # const double *normals, const int64_t *qoff: N_k's rows
+                p(maxp), p(maxm))               # double *maxp, *maxm: folded into (in: -inf)
+        if LIB.reachset_sweep_extremes(*args) != 0:
+            raise RuntimeError("reachset_sweep_extremes failed")
+        checks = int(np.minimum(rem, int(horizon) + 1).sum())
+    split = [(int(a), int(b)) for a, b in zip(qoff[:-1], qoff[1:])]
+    return tuple(maxp[a:b] for a, b in split), tuple(maxm[a:b] for a, b in split), M, checks

@@ -109,6 +109,16 @@ class ConformanceModel:
     def with_joints(self, joints):
         return replace(self, joints=dict(joints))
 
+    def unvalidated(self, bounds):
+        """The parts of a reference class this model was never validated on
+        (:func:`reachset_ros.conformance.envelope.unvalidated` of :attr:`envelope`; ``bounds``
+        ``{joint: ClassBounds}`` or ``{joint: mapping of its fields}``), or None when the model
+        records no envelope (nothing guessed)."""
+        if self.envelope is None:
+            return None
+        return _envelope.unvalidated(self.envelope, {n: b if isinstance(b, _envelope.ClassBounds)
+                                                     else _envelope.ClassBounds(**b) for n, b in bounds.items()})
+
     def joint_inflation(self, joint):
         """The inflation of ``joint``'s sets: its own (``joints.<name>.inflation`` in the file),
         else the model's ``inflation`` (files written before per-joint inflation: one value for

@@ -43,6 +43,7 @@ What the monitor node makes of the ticks (pairing, faults, the events :class:`Ti
 from __future__ import annotations
 
 import ctypes
+import time
 import math
 from dataclasses import dataclass
 
@@ -322,15 +323,51 @@ class Monitor:
         k["y"][:] = y
         k["u"][:] = u
         ok = kernels.LIB.reachset_monitor_tick(k["ptr"], int(stamp_ns), k["mp_ptr"], k["mm_ptr"])
-        out = k["out"]
         if ok:
             status = list(self._all_ok)
         else:
-            status = [self.STATUS[s] for s in out["status"].tolist()]
-        return {"status": status, "margin": out["margin"].copy(), "checked": out["checked"].copy(),
-                "step": out["step"].copy(), "start_tick": out["start_tick"].copy(),
-                "deviation": out["deviation"].copy(), "bound": out["bound"].copy(),
-                "longest": out["longest"].copy(), "use": out["use"].copy()}
+            status = [self.STATUS[s] for s in k["out"]["status"].tolist()]
+        margin, deviation, bound, use = k["F"].copy()          # rows of this tick's own copy
+        checked, step, start_tick, longest = k["I"].copy()
+        return {"status": status, "margin": margin, "checked": checked, "step": step, "start_tick": start_tick,
+                "deviation": deviation, "bound": bound, "longest": longest, "use": use}
+
+    def tick_many(self, stamps, Y, U):
+        """:meth:`tick` for the ticks of a recording in a row (``reachset replay``).
+
+        ``stamps`` (T,), ``Y`` and ``U`` (T, J). The compiled kernel runs the monitor's very tick
+        function once per tick in one call (``reachset_monitor_ticks``), numpy calls
+        :meth:`tick`; the verdicts are those of :meth:`tick` called T times, to the bit.
+
+        Returns
+        -------
+        dict
+            ``status`` (T, J) int8: index into :attr:`STATUS`; ``checked`` (T, J); ``use`` (T, J);
+            ``seconds`` (T,): each tick's duration (the kernel's own, timed in C; with numpy,
+            :meth:`tick`'s).
+        """
+        stamps = np.ascontiguousarray(stamps, dtype=np.int64)
+        Y = np.ascontiguousarray(np.reshape(Y, (len(stamps), self.J)), dtype=np.float64)
+        U = np.ascontiguousarray(np.reshape(U, (len(stamps), self.J)), dtype=np.float64)
+        T = len(stamps)
+        out = {"status": np.zeros((T, self.J), np.int8), "checked": np.zeros((T, self.J), np.int64),
+               "use": np.full((T, self.J), np.nan), "seconds": np.zeros(T)}
+        if self.kernel and T:
+            k, ns, p = self._k, np.zeros(T, np.int64), kernels.ptr
+            args = (k["ptr"], T, p(stamps), p(Y), p(U), k["mp_ptr"], k["mm_ptr"],   # state, ticks, inputs, scratch
+                    p(out["status"]), p(out["checked"]), p(out["use"]), p(ns))      # per tick and joint; per tick
+            if kernels.LIB.reachset_monitor_ticks(*args) < 0:
+                raise RuntimeError("reachset_monitor_ticks failed")
+            out["seconds"] = ns * 1e-9
+            return out
+        code = {s: i for i, s in enumerate(self.STATUS)}
+        for t in range(T):
+            t0 = time.perf_counter()
+            r = self.tick(int(stamps[t]), Y[t], U[t])
+            out["seconds"][t] = time.perf_counter() - t0
+            out["status"][t] = [code[s] for s in r["status"]]
+            out["checked"][t], out["use"][t] = r["checked"], r["use"]
+        return out
 
     def _kernel_setup(self):
         p, J, S = self.plant, self.J, self.S
@@ -339,11 +376,11 @@ class Monitor:
         k = {"A": f8(p.A), "B": f8(p.B), "C": f8(p.C), "D": f8(p.D), "y": np.zeros(J), "u": np.zeros(J),
              "mp": np.empty(N), "mm": np.empty(N), "BUn": np.empty((p.A.shape[0], N)),
              "act": self.active.view(np.uint8),
-             "out": {"margin": np.empty(J), "deviation": np.empty(J), "bound": np.empty(J),
-                     "checked": np.empty(J, np.int64), "step": np.empty(J, np.int64),
-                     "start_tick": np.empty(J, np.int64), "status": np.empty(J, np.int8),
-                     "longest": np.empty(J, np.int64), "use": np.empty(J)}}
-        o = k["out"]
+             # the outputs, rows of two blocks: a tick's result is two copies (issue 38.4)
+             "F": np.empty((4, J)), "I": np.empty((4, J), np.int64)}
+        F, I = k["F"], k["I"]
+        o = k["out"] = {"margin": F[0], "deviation": F[1], "bound": F[2], "use": F[3], "checked": I[0], "step": I[1],
+                        "start_tick": I[2], "longest": I[3], "status": np.empty(J, np.int8)}
         ptr = kernels.ptr
         cl = self._clock
         st = _TickState(

@@ -69,10 +69,11 @@ class MonitorCore:
         self.model = model
         #: ``input_source: effort``: the plant input of each /joint_states message is computed
         #: from its position, velocity and effort (:class:`~reachset_ros.robot.effort.EffortInput`,
-        #: used through its ``joint_names``, ``model`` and ``plant_inputs``: no import of robot)
+        #: used through its ``joint_names``, ``model``, ``plant_inputs`` and ``plant_input``: no import of robot)
         self.effort = effort
         self._effort_data = None if effort is None else effort.model.pin_model.createData()
         self._effort_map = (None, None)
+        self._effort_names = None if effort is None else list(effort.joint_names)
         self.joints = list(joints or model.joints)
         if len(set(self.joints)) != len(self.joints):
             raise ReachsetError(f"joints {self.joints} name a joint twice")
@@ -145,12 +146,17 @@ class MonitorCore:
             self._effort_map = (names, np.array([pos[j] for j in robot], dtype=np.intp))
         idx = self._effort_map[1]
         n = len(names)
-        arrs = []
-        for a in (position, velocity, effort):
-            a = np.asarray(a, dtype=np.float64)
-            arrs.append(a[idx] if len(a) == n else np.full(len(robot), np.nan))
-        u = self.effort.plant_inputs(arrs[0][None], arrs[1][None], arrs[2][None], self._effort_data)[0]
-        return events + self.add("u", stamp, list(robot), u)
+        if len(position) == len(velocity) == len(effort) == n:
+            # one row of plant_inputs (the same operations, so the same bits), without its 2-D detour
+            u = self.effort.plant_input(*(np.asarray(a, dtype=np.float64)[idx] for a in (position, velocity, effort)),
+                                        data=self._effort_data)
+        else:
+            arrs = []
+            for a in (position, velocity, effort):
+                a = np.asarray(a, dtype=np.float64)
+                arrs.append(a[idx] if len(a) == n else np.full(len(robot), np.nan))
+            u = self.effort.plant_inputs(arrs[0][None], arrs[1][None], arrs[2][None], self._effort_data)[0]
+        return events + self.add("u", stamp, self._effort_names, u)
 
     def add_u(self, stamp, names, values):
         return self.add("u", stamp, names, values)
@@ -230,8 +236,8 @@ class MonitorCore:
         if err is not None:
             self.counters["rejected_" + kind] += 1
             return [err]
-        bad = np.flatnonzero(~np.isfinite(vals))
-        if len(bad):
+        if not np.isfinite(vals).all():
+            bad = np.flatnonzero(~np.isfinite(vals))
             # at once, not when the tick's other half arrives: a NaN /joint_states sample has no
             # /plant_input (the observer skips it, the loop waits), so it would never pair
             self.counters["invalid_" + kind] += 1

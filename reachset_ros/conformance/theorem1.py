@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import ReachsetError
 from ..sets.zonotope import halfspace_normals
 from .estimators import pinned_states
-from .kernels import as_2d, matvec, sweep
+from .kernels import as_2d, matvec, sweep, sweep_extremes
 
 
 # ------------------------------------------------------------------ Theorem 1
@@ -142,14 +142,23 @@ class Theorem1:
         sumE = np.zeros((ny, n))       # sum_{i<k} C A^i
         sumR = None                    # per normal: sum_{i<k} |n C A^i G'_W|
         E = plant.C.copy()
+        run = None                     # (N, k, radW, Ei): the sum of step k for the normals N
         for k in range(horizon + 1):
             N = normals[k]
-            radW = np.zeros((N.shape[0], plant.Gw.shape[1]))
-            # recompute per k (normals change with k when ny > 1)
-            Ei = plant.C.copy()
-            for _ in range(k):
-                radW += np.abs(N @ Ei @ plant.Gw)
-                Ei = Ei @ plant.A
+            # sum_{i<k} |N C A^i G'_W|, summed in order i = 0..k-1; with the normals of step k-1
+            # (always for ny = 1) it continues that step's sum, the same additions in the same order
+            if run is not None and run[0].shape == N.shape and np.array_equal(run[0], N):
+                radW, Ei = run[2].copy(), run[3]
+                for _ in range(run[1], k):
+                    radW += np.abs(N @ Ei @ plant.Gw)
+                    Ei = Ei @ plant.A
+            else:
+                radW = np.zeros((N.shape[0], plant.Gw.shape[1]))
+                Ei = plant.C.copy()
+                for _ in range(k):
+                    radW += np.abs(N @ Ei @ plant.Gw)
+                    Ei = Ei @ plant.A
+            run = (N, k, radW.copy(), Ei)
             radV = np.abs(N @ plant.Gv)
             cW = N @ sumE
             cV = N
@@ -195,6 +204,18 @@ def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None, allo
     :mod:`reachset_ros.fleet`) instead of raising.
     """
     thm = thm or Theorem1.build(plant, horizon)
+    fused = sweep_extremes(plant, estimator, y, u, segments, horizon, thm.normals)   # compiled, to the bit
+    devs = Deviations(*fused) if fused is not None else _extremes_numpy(plant, estimator, y, u, segments, horizon,
+                                                                        thm)
+    if devs.test_cases == 0 and not allow_empty:
+        raise ReachsetError("too few samples for a test case (need at least "
+                            f"{estimator.history + 1} consecutive valid ticks)")
+    return devs
+
+
+def _extremes_numpy(plant, estimator, y, u, segments, horizon, thm):
+    """:func:`deviation_extremes` with numpy (the visitor of :func:`sweep`; the compiled kernel's
+    ``reachset_sweep_extremes`` is its copy)."""
     maxp = [None] * (horizon + 1)
     maxm = [None] * (horizon + 1)
     count = [0]
@@ -207,9 +228,6 @@ def deviation_extremes(plant, estimator, y, u, segments, horizon, thm=None, allo
         count[0] += ya.shape[1]
 
     M = sweep(plant, estimator, y, u, segments, horizon, visit)
-    if M == 0 and not allow_empty:
-        raise ReachsetError("too few samples for a test case (need at least "
-                            f"{estimator.history + 1} consecutive valid ticks)")
     for k in range(horizon + 1):
         if maxp[k] is None:
             q = thm.normals[k].shape[0]

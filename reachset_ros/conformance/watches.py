@@ -282,15 +282,23 @@ class StuckSensorWatch:
         """Account for the tick at ``stamp`` with positions ``y`` (J,); a FaultEvent or None."""
         y = np.asarray(y, dtype=np.float64)
         step = None if self.last_stamp is None else stamp - self.last_stamp
+        repeated = False
         if step is None or not (self.dt_ns <= 2 * step <= 3 * self.dt_ns):   # a gap: runs start anew
             self.repeats[:] = 0
             self.stamps.clear()
         else:
-            self.repeats = np.where(y == self.last_y, self.repeats + 1, 0)
+            same = y == self.last_y
+            repeated = bool(same.any())
+            if repeated:
+                self.repeats = np.where(same, self.repeats + 1, 0)
+            else:                       # the usual tick (every joint's reading changed): no candidate
+                self.repeats[:] = 0
         self.last_y, self.last_stamp = y.copy(), stamp
         self.stamps.append(stamp)
         if self._speed_at(stamp) is None:
             self.unreferenced += 1
+        if not repeated:                # ticks >= 1: no run of repeats
+            return None
         cand = np.flatnonzero(self.repeats >= self.ticks)
         if not len(cand):
             return None

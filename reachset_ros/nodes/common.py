@@ -13,6 +13,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from ..errors import ReachsetError
 from ..processes import use_dds_profiles
@@ -237,7 +238,13 @@ def parameter_value(v):
 def spin_until_complete(node, future, timeout):
     """Spin ``node`` until ``future`` is done or ``timeout`` s have passed: with the executor
     the node belongs to, else with rclpy's global one (which takes the node in and out, and
-    leaves ``node.executor`` set)."""
+    leaves ``node.executor`` set).
+
+    A ``timeout`` at or below zero spins once without waiting: rclpy's own
+    ``spin_until_future_complete`` reads a negative timeout as *wait forever*, and a caller's
+    remaining time (``deadline - now``) goes negative when it is preempted at its deadline (a
+    CI run's ``reachset gains set --timeout 60`` hung past 300 s on a request no node answered)."""
+    timeout = max(0.0, float(timeout))
     executor = node.executor
     if executor is not None and node in executor.get_nodes():
         executor.spin_until_future_complete(future, timeout_sec=timeout)
@@ -253,23 +260,27 @@ RESEND_AFTER = 2.0
 def call_parameter_service(node, send, timeout):
     """Call a parameter service (idempotent: get, set) through ``send()`` (one of the request
     methods of an :class:`rclpy.parameter_client.AsyncParameterClient`, returning a future),
-    sending the request again every ``RESEND_AFTER`` s while no answer has come, until
-    ``timeout`` s have passed.
+    sending the request again while no answer has come, first after ``RESEND_AFTER`` s and
+    then after twice the previous wait, until ``timeout`` s have passed.
 
     A node that has just started can answer before Fast DDS has matched the caller's reply
     reader; the answer is then dropped ("failed to send response (timeout): client will not
     receive response") and the caller would wait out its whole timeout (seen in a CI run).
-    Setting the same parameters twice gives the same configuration. Returns the response,
-    or None when none came in time.
+    Setting the same parameters twice gives the same configuration (a node takes a repeat of
+    its running values as it is: :func:`~reachset_ros.nodes.param_callbacks.repeats_current`).
+    The waits double because an unanswered request may only be slow (a gate that certifies
+    for seconds on a loaded machine): every copy sent is handled in turn. Returns the
+    response, or None when none came in time.
     """
     deadline = time.monotonic() + timeout
-    futures = []
+    answered = Future()             # the first answer to any of the copies sent
+    wait = RESEND_AFTER
     while time.monotonic() < deadline:
-        futures.append(send())
-        spin_until_complete(node, futures[-1], min(RESEND_AFTER, deadline - time.monotonic()))
-        done = [f for f in futures if f.done()]
-        if done:
-            return done[0].result()
+        send().add_done_callback(lambda f: answered.done() or answered.set_result(f.result()))
+        spin_until_complete(node, answered, min(wait, deadline - time.monotonic()))
+        if answered.done():
+            return answered.result()
+        wait *= 2
     return None
 
 

@@ -73,11 +73,11 @@ from ..systems.stopping import StopPolicy, StopState, stop_tick
 from . import reference_events
 from .common import MONITOR_STARTED, TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (current_values, declare_certificate_parameters, declare_gain_parameters, log_gain_change,
-                          proposed_values,
+                          log_envelope, proposed_values,
                           validate_pair)
 from . import estimate_watch, monitor_health
 from .pair_gate import check_running_pair
-from .param_callbacks import StagedRequest, add_parameter_callbacks
+from .param_callbacks import StagedRequest, add_parameter_callbacks, repeats_current
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
@@ -196,6 +196,7 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         self.idx = np.array([rob.joint_names.index(j) for j in self.joints])
         self.model = model
         self.apply(cfg, "start-up")
+        log_envelope(self, cfg, "start-up")
         # the drives' torque limits (the URDF's effort limits) of the controlled joints
         eff = np.array(rob.pin_model.effortLimit, dtype=np.float64)[self.idx]
         self.tau_limit = np.where(np.isfinite(eff) & (eff > 0), eff, np.inf)
@@ -284,7 +285,11 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
 
     def on_set_parameters(self, params):
         """Validate a request (on_set): the pair's gate with the proposed values and model; a
-        refused request is logged (PRIVILEGED) and leaves the running configuration as it was."""
+        refused request is logged (PRIVILEGED) and leaves the running configuration as it was; a
+        repeat of the running values (:func:`repeats_current`) is accepted as it is."""
+        if repeats_current(self, params):
+            self.param_request.hold(params, None)
+            return SetParametersResult(successful=True)
         result, cfg = self.check_request(params)
         if result.successful:
             self.param_request.hold(params, cfg)
@@ -294,8 +299,11 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
 
     def post_set_parameters(self, params):
         """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
-        self.apply(self.param_request.take(params), "gain change")
-        log_gain_change(self, params, SetParametersResult(successful=True))
+        cfg = self.param_request.take(params)
+        if cfg is None:             # a repeat: nothing changed
+            return
+        self.apply(cfg, "gain change")
+        log_gain_change(self, params, SetParametersResult(successful=True), cfg)
 
     def check_request(self, params):
         """``(SetParametersResult, configuration or None)`` of a proposed request (nothing applied)."""

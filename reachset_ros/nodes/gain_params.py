@@ -61,11 +61,12 @@ GAIN_CHANGE_PARAMS = ("observer", "controller", "eso_input", *GAIN_DOCS, "model_
                       "allow_uncertified")
 
 
-def log_gain_change(node, params, result):
+def log_gain_change(node, params, result, cfg=None):
     """A ``PRIVILEGED`` log line for a parameter request that changes the gains or the model
     (:func:`reachset_ros.nodes.audit.log_privileged`), granted or refused; with the
     ``change_reason`` set in the same request. Parameter requests name no caller: the line
-    lists the nodes with a client of this node's parameter services."""
+    lists the nodes with a client of this node's parameter services. With the granted
+    configuration ``cfg``: the envelope's line too (:func:`log_envelope`)."""
     from .audit import log_privileged
     changed = [p for p in params if p.name in GAIN_CHANGE_PARAMS]
     if not changed:
@@ -78,6 +79,8 @@ def log_gain_change(node, params, result):
     outcome = "granted" if result.successful else f"refused: {result.reason}"
     services = [node.resolve_service_name("~/set_parameters"), node.resolve_service_name("~/set_parameters_atomically")]
     log_privileged(node, f"gain change ({what})", "", reason, outcome, services)
+    if cfg is not None and result.successful:
+        log_envelope(node, cfg, "gain change")
 
 
 def declare_certificate_parameters(node):
@@ -119,7 +122,9 @@ def validate_pair(node, values, model):
     u_ff_bound, allow_uncertified; the node's current values otherwise), with U_e,ff of gains
     other than the model's over its reference class
     (:func:`~reachset_ros.synthesis.reference_error.u_e_ff_for_gains`). Returns a dict:
-    ``gains``, ``laws``, ``settling``, ``uncertified`` (from the certificate), ``u_max``,
+    ``gains``, ``laws``, ``settling``, ``uncertified``, ``envelope_note`` and ``unvalidated``
+    (from the certificate: the parts of the certified class the model was never validated on,
+    issue 37.3, :meth:`~reachset_ros.systems.gains.PairCertificate.envelope_note`), ``u_max``,
     ``u_ff``, ``model``; raises ReachsetError with the reason."""
     def value(name):
         return values[name] if name in values else node.get_parameter(name).value
@@ -129,7 +134,22 @@ def validate_pair(node, values, model):
     pc = certify_pair(gains, model, u_max, u_ff, node.dt, bool(value("allow_uncertified")),
                       u_e_ff_for=u_e_ff_for_gains)
     return dict(gains=pc.gains, laws=pc.laws, settling=pc.settling, uncertified=pc.uncertified,
-                u_max=u_max, u_ff=u_ff, model=model)
+                envelope_note=pc.envelope_note(), unvalidated=pc.unvalidated_lines(), u_max=u_max, u_ff=u_ff,
+                model=model)
+
+
+def log_envelope(node, cfg, cause):
+    """One line per applied change of the gate's inputs (start-up, a gain or model change; issue
+    37.3): a WARN naming the parts of the certified class the model was never validated on
+    (:func:`validate_pair`'s ``envelope_note``), else an INFO saying the class lies inside the
+    envelope or that the model records none. Naming, not refusing (docs/theory.md, row G21):
+    the certificate holds for the model; the envelope says where the model was tested. The
+    parameter service cannot carry it: rclpy answers a granted request with an empty reason."""
+    text = f"{cause}: {cfg['envelope_note']}"
+    if cfg["unvalidated"]:          # two call sites: rclpy refuses one site logging at two severities
+        node.get_logger().warning(text)
+    else:
+        node.get_logger().info(text)
 
 
 def gains_from(values: dict, joints):

@@ -32,7 +32,9 @@ controller holds the arm meanwhile with the braking law and the drives, no brake
 2): the held arm is the modelled plant, and its ticks are the checked ticks that release the
 stop. A reset never clears the start-up stop; a
 fault or violation while not ready replaces it with a latched stop of its own (with its
-window bag; the start-up stop writes none: nothing offended).
+window bag; the start-up stop writes none: nothing offended). The start-up stop is also held
+while the running controller/observer pair is not certified under the model (row G19,
+:mod:`.monitor_pair`), and a ``model_file`` change under which it is not is refused.
 """
 from __future__ import annotations
 
@@ -41,7 +43,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -60,6 +61,8 @@ from ..conformance.watches import FaultEvent, TickEvent
 from ..errors import ReachsetError
 from ..robot.effort import load_effort_input
 from .audit import log_privileged
+from .monitor_pair import PairHold
+from .monitor_status import StatusMessage, TickTimes
 from .param_callbacks import StagedRequest, add_parameter_callbacks
 from .common import MONITOR_NOT_READY, MONITOR_STARTED, SAFE_STOP_QOS, STATUS_QOS, declare_realtime_priority, desc, spin_node, stamp_ns, to_stamp
 
@@ -139,6 +142,10 @@ class MonitorNode(Node):
         self.last_rx_wall = {}        # topic kind ("y", "u") -> wall time of its last message
         self.first_rx_wall = {}       # topic kind -> its first message since the model was loaded / reset
         self.counters = collections.Counter()   # node-level: messages ignored without a model
+        self.tick_times = TickTimes()           # the whole tick's wall time (issue 38.4, /diagnostics)
+        self.publish_times = TickTimes("publish_wall")   # its part in publishing the status
+        self.statuses = 0                       # /conformance/status messages published
+        self.status_msg = StatusMessage()
         self.model_id = ""
         self.status_pub = self.create_publisher(ConformanceStatus, "conformance/status", STATUS_QOS)
         self.stop_pub = self.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
@@ -165,6 +172,7 @@ class MonitorNode(Node):
         self.create_timer(float(self.get_parameter("dt").value), self.watchdog)
         self.create_timer(float(self.get_parameter("dt").value), self.repeat_stop)
         self.param_request = StagedRequest()
+        self.pair_hold = PairHold(self)     # row G19: the running pair under this model
         add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
         if self.MANAGED:                        # the managed variant loads the model on configure
             if self.effort_error:
@@ -198,6 +206,7 @@ class MonitorNode(Node):
         horizon, all conformant, which takes both inputs (a tick is a /joint_states and a
         /plant_input sample of the same stamp; /joint_states alone with ``input_source:
         effort``). Written without an offending window: nothing offended."""
+        why = self.pair_hold.explain(why)      # a pair not certified under the model holds it (G19)
         self.clean_ticks, self.last_unclean = 0, why
         need = self.core.model.horizon + 1 if self.core is not None else "k*+1"
         self.publish_stop_state(True, "not_ready",
@@ -214,7 +223,8 @@ class MonitorNode(Node):
         """Release the start-up stop once ``k* + 1`` consecutive ticks were checked to the
         horizon and conformant (the clean-tick count of :meth:`handle_events`); a stop
         latched by a check stays (only a reset clears it)."""
-        if self.not_ready and self.core is not None and self.clean_ticks >= self.core.model.horizon + 1:
+        if (self.not_ready and self.core is not None and self.clean_ticks >= self.core.model.horizon + 1
+                and not self.pair_hold.reason):
             self.publish_stop_state(False, "reset", MONITOR_STARTED)
             self.get_logger().info(f"ready: {self.clean_ticks} consecutive ticks checked to k*="
                                    f"{self.core.model.horizon}, all conformant; the start-up stop is released")
@@ -268,6 +278,7 @@ class MonitorNode(Node):
         if core is None:
             return False, why
         self.apply(core, model_id, path)
+        self.pair_hold.start(core.model)        # held until the running pair is certified (G19)
         return True, ""
 
     def _outside_mode(self, value):
@@ -294,6 +305,9 @@ class MonitorNode(Node):
                 core, model_id, why = self.build(path, joints, new)
                 if core is None:
                     return SetParametersResult(successful=False, reason=why)
+                why = self.pair_hold.check_now(core.model) if "model_file" in new else ""
+                if why:                         # row G19: the running pair under the new model
+                    return SetParametersResult(successful=False, reason=why)
                 staged = (core, model_id, path)
         self.param_request.hold(params, staged)
         return SetParametersResult(successful=True)
@@ -308,6 +322,8 @@ class MonitorNode(Node):
         if "model_file" in new or "joints" in new:
             if staged is not None:
                 self.apply(*staged)
+                if "model_file" in new:         # on_set certified the running pair under it
+                    self.pair_hold.start(staged[0].model, "")
         elif self.core is not None:
             if "max_missing_ticks" in new:
                 self.core.coverage.set_max_missing_ticks(new["max_missing_ticks"])
@@ -319,6 +335,7 @@ class MonitorNode(Node):
 
     # -- data ---------------------------------------------------------------------------
     def on_joint_states(self, msg):
+        t0, n0 = time.perf_counter_ns(), self.statuses
         if self.effort is not None:
             if self.core is None:
                 self.counters["ignored_without_model"] += 1
@@ -329,11 +346,16 @@ class MonitorNode(Node):
                 self.first_rx_wall.setdefault(kind, now)
             self.handle_events(self.core.add_joint_state(stamp_ns(msg.header.stamp), list(msg.name), msg.position,
                                                          msg.velocity, msg.effort))
-            return
-        self.on_data("y", msg.header.stamp, msg.name, msg.position)
+        else:
+            self.on_data("y", msg.header.stamp, msg.name, msg.position)
+        if self.statuses != n0:                 # this message completed a tick: its whole time
+            self.tick_times.add(time.perf_counter_ns() - t0)
 
     def on_plant_input(self, msg):
+        t0, n0 = time.perf_counter_ns(), self.statuses
         self.on_data("u", msg.header.stamp, msg.name, msg.acceleration)
+        if self.statuses != n0:
+            self.tick_times.add(time.perf_counter_ns() - t0)
 
     def on_reference(self, msg):
         """/reference feeds the stuck-sensor rule only (no tick, no watchdog)."""
@@ -347,7 +369,7 @@ class MonitorNode(Node):
         now = time.monotonic()
         self.last_rx_wall[kind] = now
         self.first_rx_wall.setdefault(kind, now)
-        self.handle_events(self.core.add(kind, stamp_ns(stamp), list(names), list(values)))
+        self.handle_events(self.core.add(kind, stamp_ns(stamp), names, values))
 
     def handle_events(self, events):
         for ev in events:
@@ -356,20 +378,29 @@ class MonitorNode(Node):
                 self.trigger(ev.stamp, ev.kind, ev.reason, ev.joint)
                 continue
             stamp, res = ev.stamp, ev.result
-            if ev.conformant and ev.longest >= self.core.model.horizon:
+            out = ev.outside_envelope
+            self.envelope_outside = () if out is None or not any(out) else \
+                tuple(n for n, o in zip(self.core.joints, out) if o)
+            # with outside_envelope: stop, a tick outside the envelope is not clean: a reset (and the
+            # start-up release) waits until the data are back inside, or the monitor would grant a
+            # reset and stop again at the next tick (issue 37.2)
+            outside_stops = bool(self.envelope_outside) and self.outside_mode == "stop"
+            conformant = ev.conformant
+            if conformant and ev.longest >= self.core.model.horizon and not outside_stops:
                 self.clean_ticks += 1
             else:
                 self.clean_ticks = 0
                 self.last_unclean = (f"tick {stamp} not conformant" if "violation" in res["status"] else
+                                     f"tick {stamp} outside the validated envelope on "
+                                     f"{', '.join(self.envelope_outside)} (outside_envelope: stop)"
+                                     if conformant and ev.longest >= self.core.model.horizon else
                                      f"tick {stamp} checked only up to step {ev.longest} of k*={self.core.model.horizon}")
             self.last_tick_wall = time.monotonic()
-            self.publish_status(ev)
-            self.release_when_ready()
-            viol = [j for j, s in enumerate(res["status"]) if s == "violation"]
-            out = ev.outside_envelope
-            self.envelope_outside = () if out is None else tuple(n for n, o in zip(self.core.joints, out) if o)
-            if viol:
-                j = viol[0]
+            self.publish_status(ev, conformant)
+            if self.stop_active:
+                self.release_when_ready()
+            if "violation" in res["status"]:
+                j = res["status"].index("violation")
                 self.trigger(stamp, "violation",
                              f"joint {self.core.joints[j]} left its reachable set at step k={int(res['step'][j])}: "
                              f"N y_a = {res['deviation'][j]:.6g} > bound {res['bound'][j]:.6g}"
@@ -380,26 +411,22 @@ class MonitorNode(Node):
                 self.trigger(stamp, "outside_envelope", ev_envelope.outside_reason(self.envelope_outside, stamp),
                              self.envelope_outside[0])
 
-    def publish_status(self, ev: TickEvent):
-        stamp, res = ev.stamp, ev.result
-        m = ConformanceStatus()
-        to_stamp(m.header.stamp, stamp)
-        # true only if every joint checked a test case and none was violated: a tick at which
-        # nothing was checked (warm-up after a start, reset or gap) is not conformant; a
-        # violation is a margin < 0 (margin is +1e300 where nothing was checked)
-        m.conformant = ev.conformant
-        m.safe_stop_active = self.stop_active
-        m.tick = int(self.core.ticks_since_reset)      # ticks processed since the last reset
-        m.horizon = int(self.core.model.horizon)
-        m.active_test_cases = int(max(res["checked"])) if len(res["checked"]) else 0
-        m.name = list(self.core.joints)
-        m.margin = [float(x) if np.isfinite(x) else (1e300 if x > 0 else -1e300) for x in res["margin"]]
-        m.deviation = [float(x) for x in res["deviation"]]
-        m.tightest_step = [int(x) for x in res["step"]]
-        m.set_use = [float(x) for x in res["use"]]     # set_use.check_use's largest per joint (NaN: none)
-        m.check_duration = float(ev.duration)
-        m.model_id = self.model_id
+    def publish_status(self, ev: TickEvent, conformant):
+        """``/conformance/status`` of a tick (the message built once, :class:`StatusMessage`).
+        ``conformant``: ``ev.conformant`` (a property, computed once by the caller): true only
+        if every joint checked a test case and none was violated: a tick at which nothing was checked
+        (warm-up after a start, reset or gap) is not conformant; a violation is a margin < 0
+        (margin is +1e300 where nothing was checked)."""
+        core = self.core
+        m = self.status_msg.fill(stamp=ev.stamp, result=ev.result,
+                                 conformant=conformant,
+                                 stop_active=self.stop_active, tick=core.ticks_since_reset,
+                                 horizon=core.model.horizon, joints=core.joints, duration=ev.duration,
+                                 model_id=self.model_id)
+        t0 = time.perf_counter_ns()
         self.status_pub.publish(m)
+        self.publish_times.add(time.perf_counter_ns() - t0)
+        self.statuses += 1
 
     def trigger(self, stamp, kind, reason, joint="", step=-1, start_tick=-1, deviation=0.0, bound=0.0):
         """Latch the safe stop (first cause wins; a fault or violation while not ready replaces
@@ -534,6 +561,12 @@ class MonitorNode(Node):
                        if fresh else "reset refused: no checked tick within the missing-data limit (no fresh data)")
                 log_privileged(self, f"safe-stop reset through {via}", caller, reason, why, services)
                 return False, why
+        if was and self.pair_hold.reason:
+            # row G19: the running pair is not (yet) certified under this model (asked after the
+            # clean ticks, whose refusal is the usual one while the arm comes to rest)
+            why = f"reset refused: {self.pair_hold.reason}"
+            log_privileged(self, f"safe-stop reset through {via}", caller, reason, why, services)
+            return False, why
         self.clean_ticks, self.last_unclean = 0, "no tick checked since the reset"
         if self.core is not None:
             self.core.reset()
@@ -588,11 +621,11 @@ class MonitorNode(Node):
                            "was never validated on such motion (outside_envelope: warn)")
         counts = collections.Counter(self.counters)
         counts["callback_errors"] = getattr(self, "callback_errors", 0)
-        values = {}
+        values = self.tick_times.summary() | self.publish_times.summary()
         if self.core is not None:
             counts.update(self.core.counters)
             cov = self.core.coverage
-            values = {"longest_step": cov.last_longest, "horizon": self.core.model.horizon,
+            values |= {"longest_step": cov.last_longest, "horizon": self.core.model.horizon,
                       "horizon_coverage": f"{cov.share:.4f}", "outside_envelope": self.outside_mode,
                       "envelope": "recorded" if self.core.envelope is not None else
                       "none recorded in the model: ticks not classified",

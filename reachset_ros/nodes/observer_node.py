@@ -28,8 +28,8 @@ from ..errors import ReachsetError
 from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (check_running_pair, current_values, declare_certificate_parameters, declare_gain_parameters,
-                          log_gain_change, proposed_values, validate_pair)
-from .param_callbacks import StagedRequest, add_parameter_callbacks
+                          log_envelope, log_gain_change, proposed_values, validate_pair)
+from .param_callbacks import StagedRequest, add_parameter_callbacks, repeats_current
 
 
 class ObserverNode(Node):
@@ -82,7 +82,9 @@ class ObserverNode(Node):
 
     def configure(self, values, model):
         """Validate and apply a configuration (start-up); ReachsetError with the reason."""
-        self.apply(self.validate(values, model))
+        cfg = self.validate(values, model)
+        self.apply(cfg)
+        log_envelope(self, cfg, "start-up")
 
     def validate(self, values, model):
         """The pair's gate (as the controller's) and each observer stable; nothing applied.
@@ -109,7 +111,11 @@ class ObserverNode(Node):
         self.pending = None  # (stamp, y per joint) awaiting its plant input
 
     def on_set_parameters(self, params):
-        """Validate a request (on_set); a refused one is logged (PRIVILEGED) and changes nothing."""
+        """Validate a request (on_set); a refused one is logged (PRIVILEGED) and changes nothing;
+        a repeat of the running values (:func:`repeats_current`) is accepted as it is."""
+        if repeats_current(self, params):
+            self.param_request.hold(params, None)
+            return SetParametersResult(successful=True)
         model = self.model
         try:
             for p in params:
@@ -127,8 +133,11 @@ class ObserverNode(Node):
 
     def post_set_parameters(self, params):
         """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
-        self.apply(self.param_request.take(params))
-        log_gain_change(self, params, SetParametersResult(successful=True))
+        cfg = self.param_request.take(params)
+        if cfg is None:             # a repeat: nothing changed
+            return
+        self.apply(cfg)
+        log_gain_change(self, params, SetParametersResult(successful=True), cfg)
 
     def on_joint_states(self, msg):
         stamp = stamp_ns(msg.header.stamp)

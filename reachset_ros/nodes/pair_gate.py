@@ -26,12 +26,16 @@ U_p and U_ff bound; a monitor that runs but cannot be read refuses the change (f
 With no monitor running (training, a node run alone) only the two nodes' models certify it.
 A change of model and gains for all three (the synthesis node: controller, observer, then
 monitor) is thus applied only when the new gains are certified under the monitor's current
-model too, so no moment runs gains the monitored sets do not certify.
+model too, so no moment runs gains the monitored sets do not certify. A monitor that starts, or
+loads a new ``model_file``, before this node has discovered it certifies the running pair under
+its model itself (:mod:`.monitor_pair`, with :func:`running_pair_certificate`).
 
 Start-up is not checked here (the other node may not be discovered yet): both nodes start from
 one parameter file (``reachset up``, the synthesis node's ``applied_gains.params.yaml``) and
 their start-up gate certifies it.
 """
+import time
+
 import numpy as np
 import rclpy
 
@@ -46,6 +50,10 @@ defaults.register("nodes.pair", {
     "timeout": (10.0, "seconds the observer and controller nodes wait for the other node's parameters when they "
                       "certify the pair that will run (pair_node); no answer: the change is refused (the synthesis "
                       "node's per-call timeout: 2 s timed out on the loaded 2-core machine during the demo)"),
+    "discover": (2.0, "seconds the observer and controller nodes look for the other node (pair_node) in the "
+                      "graph before refusing a change because it is not running: one snapshot of the graph "
+                      "missed a live partner just after another participant left (a fresh clone's test run, "
+                      "2026-11-27); a partner that is there answers at once"),
 }, owner=__name__)
 
 #: the parameters each node's half of the loop consists of (the rest is its copy of the other half)
@@ -54,7 +62,7 @@ OWN_KEYS = {"controller": ("controller", "omega", "zeta"),
 #: the other node of each role (the default of ``pair_node``)
 PARTNER = {"controller": "observer_node", "observer": "controller_node"}
 #: what is read from the other node: its half, its joints and its gate's inputs
-READ = ("joints", *TYPE_KEYS, *GAIN_KEYS, "model_file", "u_max", "u_ff_bound", "allow_uncertified")
+READ = ("joints", *TYPE_KEYS, *GAIN_KEYS, "model_file", "u_max", "u_ff_bound", "allow_uncertified", "dt")
 
 
 def role(node):
@@ -116,9 +124,17 @@ def _client(node):
     return node._pair_client
 
 
-def _running(client, name):
-    """Whether a node named ``name`` is in the graph ``client`` sees."""
-    return name.lstrip("/") in [n for n, _ in client.get_node_names_and_namespaces()]
+def _running(client, name, wait=0.0):
+    """Whether a node named ``name`` is in the graph ``client`` sees; with ``wait`` > 0 the graph
+    is looked at again every 50 ms for up to ``wait`` seconds before answering no (a partner
+    the gate needs: a single snapshot can miss a live node while the graph churns)."""
+    end = time.monotonic() + wait
+    while True:
+        if name.lstrip("/") in [n for n, _ in client.get_node_names_and_namespaces()]:
+            return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.05)
 
 
 def check_running_pair(node, params, values, model, *, u_e_ff_for=u_e_ff_for_gains):
@@ -182,7 +198,7 @@ def _partner_gate(node, partner, values, model):
     from .gain_params import gains_from
     timeout = float(defaults.get("nodes.pair.timeout"))
     client = _client(node)
-    if not _running(client, partner):
+    if not _running(client, partner, wait=float(defaults.get("nodes.pair.discover"))):
         raise guarantees.refused("G16", f"the pair that will run cannot be certified: {partner} is not running "
                                         f"(pair_node {partner!r}; '' for a node run alone)")
     other, why = get_remote_parameters(client, partner, READ, timeout=timeout)
@@ -225,35 +241,68 @@ def _monitor_gate(node, values, own):
         raise guarantees.refused("G19", f"{monitor}'s model_file {path}: {first_line(e)}") from None
 
 
-def certify_running_pair_under(client, model, *, controller="controller_node", observer="observer_node",
-                               timeout=10.0, u_e_ff_for=u_e_ff_for_gains):
-    """Whether the pair running now is certified under ``model`` (row G19 for a monitor about
-    to check ``model``'s sets while these gains still run).
+def running_pair_certificate(client, model, *, controller="controller_node", observer="observer_node",
+                             timeout=10.0, u_e_ff_for=u_e_ff_for_gains):
+    """The certificate of the pair running now under ``model``: ``(PairCertificate, "")``, or
+    ``(None, why)`` when the gate refuses it or a node cannot be read (one line).
 
     The controller's half is read from ``controller``, the observer's from ``observer``
     (their current parameters, :data:`READ`), and certified with the controller's U_p, U_ff
     bound and ``allow_uncertified`` (:func:`~reachset_ros.systems.gains.certify_pair`).
+    """
+    from .gain_params import gains_from, u_max_array
+    ctl, why = get_remote_parameters(client, controller, READ, timeout=timeout)
+    obs, why2 = (None, "") if ctl is None else get_remote_parameters(client, observer, READ, timeout=timeout)
+    if ctl is None or obs is None:
+        return None, why or why2
+    joints = [j for j in ctl["joints"] if j]
+    try:
+        run = {k: (ctl[k] if k in OWN_KEYS["controller"] else str(obs[k]) if k in TYPE_KEYS
+                   else _per_joint(obs[k], [j for j in obs["joints"] if j], joints, k, observer))
+               for k in (*TYPE_KEYS, *GAIN_KEYS)}
+        # the controller's own tick period, as its gate certifies with (gain_params: node.dt)
+        return certify_pair(gains_from(run, joints), model, u_max_array(ctl["u_max"], len(joints)),
+                            float(ctl["u_ff_bound"]), float(ctl["dt"]), bool(ctl["allow_uncertified"]),
+                            u_e_ff_for=u_e_ff_for), ""
+    except (ReachsetError, ValueError, IndexError) as e:
+        return None, first_line(e)
+
+
+def certify_running_pair_under(client, model, *, controller="controller_node", observer="observer_node",
+                               timeout=10.0, u_e_ff_for=u_e_ff_for_gains):
+    """Whether the pair running now is certified under ``model`` (row G19 for a monitor about
+    to check ``model``'s sets while these gains still run; :func:`running_pair_certificate`).
 
     Returns
     -------
     str
         Empty when certified; else one line: the gate's refusal or the node that could not be read.
     """
-    from .gain_params import gains_from, u_max_array
-    ctl, why = get_remote_parameters(client, controller, READ, timeout=timeout)
-    obs, why2 = (None, "") if ctl is None else get_remote_parameters(client, observer, READ, timeout=timeout)
-    if ctl is None or obs is None:
-        return why or why2
-    joints = [j for j in ctl["joints"] if j]
+    return running_pair_certificate(client, model, controller=controller, observer=observer, timeout=timeout,
+                                    u_e_ff_for=u_e_ff_for)[1]
+
+
+def running_envelope(client, *, controller="controller_node", observer="observer_node", timeout=10.0):
+    """The envelope's answer for the pair running now under the controller's model (issue
+    37.3; ``reachset gains set``): ``{"note": str, "unvalidated": {joint: [line]} or None}``,
+    :meth:`~reachset_ros.systems.gains.PairCertificate.envelope_note`. A model without an
+    envelope (or no model) is ``envelope: none recorded`` without a certificate; a pair the
+    gate refuses or a node that cannot be read gives the reason in ``note``."""
+    got, why = get_remote_parameters(client, controller, ["model_file"], timeout=timeout)
+    if got is None:
+        return {"note": f"envelope: not checked ({why})", "unvalidated": None}
+    path = str(got["model_file"] or "")
     try:
-        run = {k: (ctl[k] if k in OWN_KEYS["controller"] else str(obs[k]) if k in TYPE_KEYS
-                   else _per_joint(obs[k], [j for j in obs["joints"] if j], joints, k, observer))
-               for k in (*TYPE_KEYS, *GAIN_KEYS)}
-        certify_pair(gains_from(run, joints), model, u_max_array(ctl["u_max"], len(joints)), float(ctl["u_ff_bound"]),
-                     float(model.plant_spec.get("dt", 0.004)), bool(ctl["allow_uncertified"]), u_e_ff_for=u_e_ff_for)
-    except (ReachsetError, ValueError, IndexError) as e:
-        return first_line(e)
-    return ""
+        model = mdl.load(path) if path else None
+    except ReachsetError as e:
+        return {"note": f"envelope: not checked ({first_line(e)})", "unvalidated": None}
+    if model is None or model.envelope is None:
+        return {"note": "envelope: none recorded", "unvalidated": None}
+    pc, why = running_pair_certificate(client, model, controller=controller, observer=observer, timeout=timeout)
+    if pc is None:
+        return {"note": f"envelope: not checked ({why})", "unvalidated": None}
+    return {"note": pc.envelope_note(),
+            "unvalidated": None if pc.unvalidated is None else {j: list(v) for j, v in pc.unvalidated.items()}}
 
 
 def set_pair(node, changes, *, timeout=10.0):

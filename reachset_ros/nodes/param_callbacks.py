@@ -8,6 +8,8 @@ holds what it validated (a certified gain pair, a loaded model) in a :class:`Sta
 its ``post_set`` takes it back and applies it, once. rclpy passes both callbacks the same
 list of parameters, which is how the request is recognised.
 """
+from array import array
+
 from ..errors import ReachsetError
 
 
@@ -35,3 +37,23 @@ def add_parameter_callbacks(node, *, on_set, post_set):
     """Register ``on_set`` (validate) and ``post_set`` (apply) on ``node``."""
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
+
+
+def _plain(value):
+    return list(value) if isinstance(value, (list, tuple, array)) else value
+
+
+#: parameters that name a file read when they are set: setting the same path again reads the
+#: file again (its contents may have changed), so a request with one is never a repeat
+RELOADED = ("model_file",)
+
+
+def repeats_current(node, params) -> bool:
+    """Whether the request ``params`` sets every parameter to the value it has now: a repeat
+    (a caller's resent request, :func:`~reachset_ros.nodes.common.call_parameter_service`),
+    which changes nothing, so nothing is to be checked or applied. A gate run again for it
+    costs seconds and asks the other node of the pair while that one may be asking back (a CI
+    run's operator test wedged both nodes for minutes that way); an observer would also
+    restart its states. A request that names a :data:`RELOADED` parameter is not a repeat."""
+    return bool(params) and all(p.name not in RELOADED and node.has_parameter(p.name)
+                                and _plain(node.get_parameter(p.name).value) == _plain(p.value) for p in params)

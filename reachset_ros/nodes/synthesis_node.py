@@ -314,7 +314,9 @@ class SynthesisNode(Node):
         if why:            # the worker refuses it already (recorded_loop.require_inside); never applied
             return False, why, data, ""
         norms = ", ".join(f"{n} {j['re_norm']:.3g}" for n, j in data["joints"].items())
-        return True, f"{mode}: ||R_e|| {norms}; model {out}", data, str(out)
+        # issue 37.3: the parts of the reference class the model was never validated on (named, not refused)
+        envelope = (data.get("envelope") or {}).get("note") or "envelope: none recorded"
+        return True, f"{mode}: ||R_e|| {norms}; model {out}; {envelope}", data, str(out)
 
     def run_child(self, cmd):
         """Run ``cmd`` (the synthesis worker) to its end: at low priority, in a process

@@ -107,6 +107,16 @@ class EffortInput:
         """:func:`plant_inputs` with this source's model."""
         return plant_inputs(self.model, Q, QD, TAU, data)
 
+    def plant_input(self, q, qd, effort, data=None) -> np.ndarray:
+        """One sample of :meth:`plant_inputs` (1-D arrays in the model's joint order): the same
+        operations on the same values, so the same bits, without the 2-D detour (the monitor
+        node's ``input_source: effort``, once per message; issue 38.4)."""
+        model = self.model
+        tau = model.torque_scale * effort
+        if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau).all()):
+            return np.full(model.nv, np.nan)
+        return inverse_fl(model, data if data is not None else create_data(model), q, qd, tau)
+
     def binding(self) -> dict:
         """The model file's ``input_source`` block of this source (issue 34.10): how u_p is
         computed, as values a reader compares: ``{"kind": "effort", "urdf_sha256",

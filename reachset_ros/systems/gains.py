@@ -418,8 +418,13 @@ class PairCertificate:
     ``gains`` (joint -> Gains), ``laws`` (joint -> :class:`~reachset_ros.systems.closedloop.FeedbackLaw`,
     the certified law of the loop), ``settling`` (joint -> ticks of its transient,
     :func:`~reachset_ros.systems.closedloop.settling_ticks`), ``certified`` (joint -> the
-    :class:`Certificate` of R*_u inside U_p, None where no model covers the joint) and
-    ``uncertified`` (the joints run on stability alone, allowed by ``allow_uncertified``).
+    :class:`Certificate` of R*_u inside U_p, None where no model covers the joint),
+    ``uncertified`` (the joints run on stability alone, allowed by ``allow_uncertified``) and
+    ``unvalidated`` (issue 37.3: joint -> the lines naming the parts of the certified class,
+    ``|qdd_d| <= u_ff`` and R*_u, that leave the model's validated envelope, an empty tuple
+    when none does,
+    :meth:`~reachset_ros.conformance.model.ConformanceModel.unvalidated`; None when no model or
+    the model records no envelope: then :meth:`envelope_note` says "envelope: none recorded").
     """
 
     gains: dict
@@ -427,6 +432,17 @@ class PairCertificate:
     settling: dict
     certified: dict
     uncertified: tuple
+    unvalidated: dict = None
+
+    def unvalidated_lines(self):
+        """Every line of :attr:`unvalidated`, joint by joint (empty when none, or none recorded)."""
+        return [line for lines in (self.unvalidated or {}).values() for line in lines]
+
+    def envelope_note(self):
+        """One line for the gate's answer: ``envelope: none recorded`` (no envelope to check
+        against), that the certified class lies inside the envelope's axes, or ``NOT VALIDATED``
+        and the parts (:attr:`unvalidated`)."""
+        return guarantees.envelope_note(self.unvalidated, "the certified class (|qdd_d| <= U_ff, R*_u) lies")
 
 
 def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncertified: bool = False,
@@ -466,6 +482,12 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
     Returns
     -------
     PairCertificate
+        With ``unvalidated`` (issue 37.3): where the model records a validated envelope, per
+        certified joint the parts of the class the certificate covers (``|qdd_d| <= u_ff`` and
+        the certified R*_u of u_p) that lie outside the envelope's axes
+        (:func:`reachset_ros.conformance.envelope.unvalidated`). Naming, not refusing: the
+        gate certifies the model, and the envelope says where the model was tested (paper,
+        Def. 4); the callers report the lines (the nodes log them as a WARN at each change).
 
     Raises
     ------
@@ -476,7 +498,7 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
         raise guarantees.refused("G4", f"the model's dt {model.plant.dt:g} s differs from the nodes' dt {dt:g} s")
     plant = model.plant if model is not None else lwa4p_joint_plant(dt=dt)
     u_max = list(u_max)
-    laws, settling, certified, uncertified = {}, {}, {}, []
+    laws, settling, certified, uncertified, bounds = {}, {}, {}, [], {}
     for i, (j, g) in enumerate(gains.items()):
         obs, ctrl = g.build(dt)
         cl = closedloop.close_loop(plant, obs, ctrl)
@@ -490,6 +512,8 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
             if not c.ok:
                 raise guarantees.refused(c.row, f"joint {j}: {c.reason}")
             certified[j] = c
+            bounds[j] = {"qdd_max": float(u_ff), "qdd_source": "U_ff, the bound of the reference's |qdd_d| the "
+                                                               "certificate covers", "u": c.ru, "u_source": "R*_u"}
         else:
             if not allow_uncertified:
                 raise guarantees.refused(
@@ -500,4 +524,5 @@ def certify_pair(gains: dict, model, u_max, u_ff: float, dt: float, allow_uncert
             uncertified.append(j)
         laws[j] = closedloop.FeedbackLaw.of(ctrl, obs)
         settling[j] = closedloop.settling_ticks(st.spectral_radius)
-    return PairCertificate(dict(gains), laws, settling, certified, tuple(uncertified))
+    return PairCertificate(dict(gains), laws, settling, certified, tuple(uncertified),
+                           unvalidated=None if model is None else model.unvalidated(bounds))

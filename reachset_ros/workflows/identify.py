@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from .. import defaults
-from .. import fleet as fl
 from ..bags import read_joint_series, segments_of
 from ..bags.messages import JOINT_STATES, PLANT_INPUT
 from ..conformance import envelope
@@ -24,7 +23,7 @@ from ..conformance import model as mdl
 from ..conformance.calibration import cross_validate
 from ..conformance.corollary1 import identify_corollary1
 from ..conformance.estimators import Estimator
-from ..conformance.identify import detection_cost, identify_quadratic, identify_sets, stable_horizon
+from ..conformance.identify import detection_cost, identify_quadratic, identify_sets, prefetch_solver, stable_horizon
 from ..conformance.kernels import require_horizon, require_minimum_horizon
 from ..conformance.theorem1 import Theorem1, deviation_extremes_many
 from ..conformance.validation import detection_delay, validation_grid
@@ -32,7 +31,8 @@ from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
 from .coverage import class_coverage, series_motion
 
-__all__ = ["DEFAULT_GRID", "IdentifyOptions", "IdentifyResult", "calibrate_margin", "check_options", "identify",
+__all__ = ["DEFAULT_GRID", "IdentifyOptions", "IdentifyResult", "calibrate_margin", "check_options", "fit_envelope",
+           "identify",
            "identify_series", "inflation_grid", "model_joint_sets", "run_ranges", "validate"]
 
 defaults.register("identify", {
@@ -245,6 +245,8 @@ def identify_series(plant, est, series, horizon, *, centers="zero", alpha_lower=
     cost = defaults.get("identify.cost") if cost is None else cost
     out = {}
     if devs is None:
+        if method != "corollary1" and cost != "quadratic":
+            prefetch_solver()                 # the LP solver's import overlaps the (GIL-free) sweep
         devs = deviation_extremes_many(plant, est, series, horizon, thm)
     for name, dev in devs.items():
         try:
@@ -394,6 +396,7 @@ def _read(o: IdentifyOptions, *, plant, est, thm, fleet, fleet_read):
         series, report = read_joint_series([Path(b) for b in o.bags], o.joints, o.dt, o.topics, **(o.reader or {}))
         require_horizon(series, est.history, o.horizon, o.bags)
         return _Data(series=series, devs=None, report=report)
+    from .. import fleet as fl        # lazy: the fleet's modules (and the synthesis') cost 0.1 s of start-up
     with fleet:
         swept = fl.extremes(fleet, o.bags, fleet_read, fl.SweepSpec(plant, est, o.horizon, thm))
     return _Data(series=None, devs=swept.devs, report=swept.report, sha256=swept.sha256, motion=swept.motion)
@@ -460,11 +463,49 @@ def _envelope(o: IdentifyOptions, data):
     series = data.series
     if series is None:
         series, _ = read_joint_series([Path(b) for b in o.bags], o.joints, o.dt, o.topics, **(o.reader or {}))
+    return fit_envelope(series, horizon=o.horizon)
+
+
+def fit_envelope(series, *, horizon):
+    """The validated envelope a model records of its identification data ``series`` ({joint:
+    JointSeries}): :func:`reachset_ros.conformance.envelope.fit` with the defaults
+    ``identify.envelope`` and hold ``horizon`` (k*), and its ``--json`` summary. The one fit of
+    every command that identifies sets from data (``identify``; ``synthesize``, all modes)."""
     env = envelope.fit(series, bins=defaults.get("identify.envelope.bins"),
-                       dilation=defaults.get("identify.envelope.dilation"), hold=o.horizon,
+                       dilation=defaults.get("identify.envelope.dilation"), hold=horizon,
                        grids=[tuple(g) for g in defaults.get("identify.envelope.grids")])
     return env, {"recorded": True, "bins": env.bins, "dilation": env.dilation, "hold": env.hold,
                  "grids": [list(g) for g in env.grids], "ticks": {n: j.ticks for n, j in env.joints.items()}}
+
+
+class _Outcome:
+    """The value of ``fn()`` computed now, or the exception it raised, handed over by :meth:`get`."""
+
+    def __init__(self, fn):
+        try:
+            self.value, self.error = fn(), None
+        except Exception as e:  # noqa: BLE001 (re-raised unchanged by get)
+            self.value, self.error = None, e
+
+    def get(self):
+        if self.error is not None:
+            raise self.error
+        return self.value
+
+
+def _sweep_started(o: IdentifyOptions, *, plant, est, thm, series):
+    """The joints' Theorem-1 sweep (:func:`deviation_extremes_many`) started in a thread, or None
+    (a fleet swept already). Its compiled kernel releases the GIL: the caller computes the
+    coverage and the envelope meanwhile, and the LP solver is imported (:func:`prefetch_solver`)."""
+    if series is None:
+        return None
+    from concurrent.futures import ThreadPoolExecutor
+    if o.method != "corollary1" and o.cost != "quadratic":
+        prefetch_solver()
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep")
+    future = pool.submit(deviation_extremes_many, plant, est, series, o.horizon, thm)
+    pool.shutdown(wait=False)       # the thread ends with its one task
+    return future
 
 
 def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
@@ -499,11 +540,17 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
         vseries, vreport = read_joint_series([Path(b) for b in o.validate], list(data.series or data.devs), o.dt,
                                              o.topics, **(o.reader or {}))
         require_horizon(vseries, est.history, o.horizon, o.validate)
+    sweep = _sweep_started(o, plant=plant, est=est, thm=thm, series=data.series)
+    # while the sweep runs (its kernel without the GIL): the coverage and the envelope, whose
+    # errors are raised where they were computed before (after the sweep's and the LPs')
+    motion = _Outcome(lambda: data.motion if data.series is None else series_motion(data.series, o.bags))
+    envelope_ = _Outcome(lambda: _envelope(o, data))
     results, thm = identify_series(plant, est, data.series, o.horizon, centers=o.centers, alpha_lower=o.alpha_lower,
-                                   thm=thm, cost=o.cost, method=o.method, devs=data.devs)
+                                   thm=thm, cost=o.cost, method=o.method,
+                                   devs=data.devs if sweep is None else sweep.result())
     joints = {n: model_joint_sets(sets, dev, o.horizon) for n, (sets, dev, _) in results.items()}
     js = {n: _joint_json(sets, dev, settled, o.horizon) for n, (sets, dev, settled) in results.items()}
-    motion = data.motion if data.series is None else series_motion(data.series, o.bags)
+    motion = motion.get()
     cov = class_coverage(motion, qd_max=o.class_qd_max, qdd_max=o.class_qdd_max, threshold=o.coverage_threshold)
     inflations = {n: 0.0 if o.inflation is None else float(o.inflation) for n in joints}   # --inflation F: all
     calib = calibrated = None
@@ -523,7 +570,7 @@ def identify(options: IdentifyOptions, *, fleet=None, fleet_read=None):
         for name, v in val.items():
             js[name]["validation"] = v
             js[name]["inflation"] = inflations[name]
-    env, env_json = _envelope(o, data)
+    env, env_json = envelope_.get()
     model = None
     if o.out is not None:
         prov = _provenance(o, data=data, grid=grid, calib=calib, inflation=inflations)

@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState
 from ..errors import ReachsetError
 from ..nodes.bringup import SIM_NODES, SUITE
 from ..nodes.common import get_remote_parameters, stamp_ns
-from ..nodes.pair_gate import OWN_KEYS, READ, set_pair
+from ..nodes.pair_gate import OWN_KEYS, READ, running_envelope, set_pair
 from ..systems.gains import ESO_INPUTS, GAIN_KEYS, TYPE_KEYS
 from .commander import open_commander
 
@@ -251,6 +251,13 @@ class Operator:
         ``reason`` is logged with the change (``change_reason``). Returns ``(ok, reason)``."""
         values = {**check_gains(gains), **({"change_reason": reason} if reason else {})}
         return set_pair(self.commander, {t: dict(values) for t in PAIR}, timeout=timeout)
+
+    def envelope(self, *, timeout=10.0) -> dict:
+        """The envelope's answer for the pair running now (issue 37.3): the parts of the class
+        the gate certifies that the controller's model was never validated on, or ``envelope:
+        none recorded`` (:func:`~reachset_ros.nodes.pair_gate.running_envelope`; the nodes'
+        parameter service cannot carry it, rclpy answers a granted request with no reason)."""
+        return running_envelope(self.commander, timeout=timeout)
 
 
 def check_gains(gains) -> dict:

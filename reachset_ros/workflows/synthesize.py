@@ -15,9 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from .. import fleet as fl
-from ..bags import read_estimates
+from .. import guarantees
+from ..bags import read_estimates, read_joint_series
 from ..conformance import model as mdl
+from ..conformance.envelope import ClassBounds, unvalidated
 from ..bags.messages import JOINT_STATES, PLANT_INPUT
+from ..errors import ReachsetError, first_line
 from ..synthesis.pipeline import BagData, BagSynthesis, SynthesisOptions, plan, read_bags, solve
 
 _TOPICS = (JOINT_STATES, PLANT_INPUT)
@@ -43,6 +46,7 @@ class SynthesisResult:
     model: str | None = None
     plots: list | None = None
     calibration: dict | None = None
+    envelope: dict | None = None      # the envelope the model records and the class checked against it
 
     def to_json(self):
         """The ``reachset synthesize --json`` object, without ``seconds``."""
@@ -51,6 +55,8 @@ class SynthesisResult:
             out["plots"] = list(self.plots)
         if self.calibration is not None:
             out["calibration"] = self.calibration
+        if self.envelope is not None:
+            out["envelope"] = self.envelope
         if self.model is not None:
             out["model"] = self.model
         return out
@@ -113,11 +119,14 @@ def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command=
     SynthesisResult
     """
     pl = plan(bags, options)
+    series = None
     if fleet is None:
-        bs = solve(pl, read_bags(pl))
+        data = read_bags(pl)
+        bs, series = solve(pl, data), data.series
     else:
         with fleet:                 # open while the problems' checker may still need it
             bs = solve(pl, sweep_on_fleet(pl, fleet=fleet, fleet_read=fleet_read))
+    env, env_json = synthesis_envelope(bs, series, options)
     plots = None
     if plot:
         from .. import plots as pp  # heavy optional dependency: matplotlib, only for --plot
@@ -126,11 +135,50 @@ def synthesize(bags, options: SynthesisOptions, *, out=None, plot=None, command=
         for pb in bs.problems:
             plots += [str(p) for p in pp.plot_joint(plot, pb, bs.results[pb.name], (est_rows or {}).get(pb.name))]
     model, calibration = None, None
-    written = bs.model(command)
+    written = replace(bs.model(command), envelope=env)
     if calibrate is not None:
         written, calibration = calibrated_model(bs, written, folds=calibrate, topics=options.topics,
                                                 reader=options.reader)
     if out is not None:
         mdl.save(written, out)
         model = str(out)
-    return SynthesisResult(synthesis=bs, model=model, plots=plots, calibration=calibration)
+    return SynthesisResult(synthesis=bs, model=model, plots=plots, calibration=calibration, envelope=env_json)
+
+
+def class_bounds(bs: BagSynthesis):
+    """Per joint what the synthesis' reference class and certificate let it do
+    (:class:`~reachset_ros.conformance.envelope.ClassBounds` fields): ``|qdd_d|`` up to the class'
+    ``qdd_max`` (the given or recorded :class:`~reachset_ros.synthesis.reference_error.ReferenceClass`,
+    else the recorded references' largest) and u_p over the certified R*_u (``ru``; method 2's
+    ``ru_star``)."""
+    out = {}
+    for n, r in bs.results.items():
+        ref = r.reference or {}
+        source = ("the reference class' qdd_max" if ref.get("reference_class") else
+                  "the recorded references' largest |qdd_d|")
+        out[n] = {"qdd_max": float(ref.get("qdd_max", r.u_ff)), "qdd_source": source,
+                  "u": tuple(float(x) for x in ref.get("ru_star", r.ru)), "u_source": "R*_u"}
+    return out
+
+
+def synthesis_envelope(bs: BagSynthesis, series, options: SynthesisOptions):
+    """The validated envelope of the synthesis' data (:func:`~reachset_ros.workflows.identify.fit_envelope`,
+    as ``identify`` records it: the synthesis identifies the sets from these data too) and its
+    ``--json`` object: the summary, and ``unvalidated`` ({joint: [line]}) with ``note``, the
+    parts of the synthesis' reference class the model was never validated on (issue 37.3,
+    :func:`~reachset_ros.conformance.envelope.unvalidated`, :func:`class_bounds`).
+    ``series`` None (a fleet's sweep): the bags are read here once more. Data the envelope
+    cannot be fitted on (a joint with no sample of some feature): none recorded, and why."""
+    from .identify import fit_envelope        # identify's imports are not needed for `synthesize --help`
+    if series is None:
+        series, _ = read_joint_series(list(bs.bags), list(bs.results), bs.plant.dt, options.topics or _TOPICS,
+                                      **(options.reader or {}))
+    try:
+        env, out = fit_envelope({n: series[n] for n in bs.results}, horizon=bs.horizon)
+    except ReachsetError as e:
+        return None, {"recorded": False, "reason": first_line(e), "unvalidated": None,
+                      "note": "envelope: none recorded"}
+    notes = {n: list(v) for n, v in unvalidated(env, {n: ClassBounds(**b) for n, b in class_bounds(bs).items()}).items()}
+    out.update(unvalidated=notes, note=guarantees.envelope_note(notes, "the reference class and R*_u lie"))
+    return env, out
+

@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -35,8 +36,21 @@ OPERATOR_TIMEOUT = ["--timeout", "60"]
 
 def cli(*args, env=None):
     extra = OPERATOR_TIMEOUT if args and args[0] in ("status", "watch", "stop", "reset", "gains") else []
-    return subprocess.run([sys.executable, "-m", "reachset_ros.cli", *args, *extra], capture_output=True, text=True,
-                          check=False, timeout=CMD_TIMEOUT, env=env)
+    cmd = [sys.executable, "-m", "reachset_ros.cli", *args, *extra]
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) as proc:
+        try:
+            out, err = proc.communicate(timeout=CMD_TIMEOUT)
+        except subprocess.TimeoutExpired:       # a hang: its stacks (SIGUSR1, reachset_ros.cli) and the nodes' logs
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(2.0)
+            proc.kill()
+            out, err = proc.communicate()
+            work = args[args.index("--workdir") + 1] if "--workdir" in args else None
+            tails = "".join(f"\n--- {log.name}\n" + "\n".join(log.read_text(errors="replace").splitlines()[-15:])
+                            for log in sorted(Path(work).glob("*.log"))) if work else ""
+            pytest.fail(f"reachset {' '.join(args)} still running after {CMD_TIMEOUT} s\nstdout: {out}\n"
+                        f"stderr: {err}{tails}")
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 
 class Listener:
@@ -154,10 +168,13 @@ def suite(tmp_path_factory):
     params = d / "params.yaml"
     u_max = {"u_max": [60.0] * 6}
     # the simulated arm waits up to 1 s for each command (a loaded machine's late command held
-    # by the simulator is a disturbance the sets do not contain)
+    # by the simulator is a disturbance the sets do not contain), and the monitor's missing-data
+    # watch (wall clock) allows 1.2 s, more than that wait: with 0.5 s, a loaded machine's
+    # stalled loop (load average 10) latched a missing_data stop while the status test ran
     params.write_text(yaml.safe_dump({"sim_node": {"ros__parameters": {"realistic": False, "lockstep_timeout": 1.0}},
                                       "controller_node": {"ros__parameters": u_max},
-                                      "observer_node": {"ros__parameters": u_max}}))
+                                      "observer_node": {"ros__parameters": u_max},
+                                      "monitor_node": {"ros__parameters": {"max_missing_ticks": 300}}}))
     work = d / "work"
     up = subprocess.Popen([sys.executable, "-m", "reachset_ros.cli", "up", "--sim", "--model", str(model),
                            "--params-file", str(params), "--workdir", str(work), "--json", "--timeout", "300"],
@@ -189,8 +206,12 @@ def suite(tmp_path_factory):
 
 def run_json(*args):
     out = cli(*args, "--json")
-    assert out.returncode == 0, (out.returncode, out.stderr[-2000:])
-    return json.loads(out.stdout)
+    # the nodes first: `status` exits 1 when one is missing (seen twice in a fresh clone whose
+    # machine ran two other test runs and a benchmark's burners beside it; which node was not
+    # printed then)
+    got = json.loads(out.stdout) if out.stdout.startswith("{") else {}
+    assert out.returncode == 0, (out.returncode, got.get("nodes"), got.get("other_nodes"), out.stderr[-2000:])
+    return got
 
 
 def test_up_writes_its_domain_into_the_workdir(suite):
@@ -203,7 +224,8 @@ def test_up_writes_its_domain_into_the_workdir(suite):
 
 def test_status_shows_the_nodes_the_model_the_gains_and_the_rates(suite):
     from reachset_ros.conformance.model import file_sha256
-    work, domain, model, _ = suite
+    work, domain, model, listener = suite
+    ensure_running(listener)    # a stop the loaded loop latched (issue 36.1) is not this test's subject
     st = run_json("status", "--workdir", str(work))
     assert st["ros_domain_id"] == domain
     assert st["nodes"] == {n: True for n in ("sim_node", "reference_node", "observer_node", "controller_node",
@@ -211,7 +233,10 @@ def test_status_shows_the_nodes_the_model_the_gains_and_the_rates(suite):
     assert st["model"]["model_file"] == str(model.resolve())
     assert st["model"]["model_id"] == file_sha256(model)[:12]
     assert st["model"]["horizon"] == 25
-    assert st["stop"]["active"] is False
+    # the monitor's stop state as the listener has it: none, unless the loop latched one since
+    newest = listener.stops[-1]
+    assert st["stop"]["active"] is False or (newest.active and st["stop"]["kind"] == newest.kind), \
+        (st["stop"], [(s.kind, s.reason) for s in listener.stops[-3:]])
     assert st["gains"]["pair"]["omega"] == [10.0] and st["gains"]["pair"]["observer"] == "hg"
     assert st["rates"]["/joint_states"] > 0 and st["rates"]["/conformance/status"] > 0
     assert set(st["set_use"]) == {"arm_1_joint", "arm_2_joint"}
@@ -292,6 +317,7 @@ def test_gains_set_changes_both_nodes_and_a_refused_set_exits_1_leaving_them(sui
     work, _, _, listener = suite
     out = cli("gains", "set", "omega=12", "--workdir", str(work), "--reason", "operator test")
     assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "envelope: none recorded"    # issue 37.3: the model has none
     for node in ("controller_node", "observer_node"):
         got = listener.get(node, ["omega", "zeta"])
         assert got == {"omega": [12.0], "zeta": [1.0]}, (node, got)

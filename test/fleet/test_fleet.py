@@ -171,6 +171,7 @@ def test_synthesize_is_bit_identical_with_workers(fleet_bags, capsys, tmp_path):
         assert all(v["conformant"] for v in j["joints"].values())
     a, b = model_body(outs["single"])[0], model_body(outs["workers"])[0]
     assert a == b and any(j.get("gains") for j in a["joints"].values())
+    assert list(a["envelope"]["joints"]) == [JOINTS[1]]     # issue 37.3: the same envelope, read again on a fleet
     r = run(["synthesize", *paths[:1], "--config", cfg, "--plot", tmp_path / "p", "--workers", 2], capsys, code=2)
     assert "--plot needs the whole series in one process" in r.err and len(r.err.strip().splitlines()) == 1
 

@@ -35,3 +35,21 @@ def monitor(bus, tmp_path_factory):
         yield proc, path, d
     finally:
         processes.stop([proc])
+
+
+@pytest.fixture
+def own_node(request):
+    """A node in an rclpy context of its own, added to an executor of that context (as an
+    operator's commander is), named after the test module; shut down afterwards."""
+    from rclpy.executors import SingleThreadedExecutor
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    n = rclpy.create_node(request.module.__name__.rsplit(".", 1)[-1], context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(n)
+    try:
+        yield n
+    finally:
+        executor.shutdown()
+        n.destroy_node()
+        rclpy.shutdown(context=context)

@@ -96,3 +96,35 @@ def test_a_violation_inside_the_envelope_says_so(bus, mon):
     finally:
         assert bus.set_params("monitor_node", {"model_file": str(path)})[0]
     assert proc.alive()
+
+
+def test_in_stop_mode_a_reset_waits_until_the_data_are_back_inside(bus, mon):
+    """With ``outside_envelope: stop`` a tick outside the envelope does not count towards the
+    clean ticks a reset needs: a reset while the data are still outside is refused, naming the
+    envelope, instead of being granted and followed by a new stop at the next tick. Before: the
+    outside ticks were conformant, so they counted, and the reset was granted."""
+    from helpers import HISTORY, HORIZON
+    proc, _, _ = mon
+    reset(bus)                                            # the previous test's stop, any data
+    ok, why = bus.set_params("monitor_node", {"outside_envelope": "stop", "reset_clean_ticks": -1})
+    assert ok, why
+    try:
+        n = 4 * (HISTORY + HORIZON + 1)
+        Y, U = stream(n, seed=14)
+        ts = stamps(2 * n)
+        bus.send_ticks(ts[:n], Y + 1.0, U)                # outside from the start, conformant
+        assert bus.wait(lambda: len(bus.statuses(ts[:n])) == n)
+        stops = bus.active_stops()
+        assert stops and stops[0].kind == "outside_envelope", [s.kind for s in stops]
+        r = bus.call_trigger("/monitor_node/reset")
+        assert not r.success and "outside the validated envelope" in r.message, r.message
+        Y2, U2 = stream(n, seed=15)
+        bus.send_ticks(ts[n:], Y2, U2)                    # back inside (the jump back is a violation)
+        assert bus.wait(lambda: len(bus.statuses(ts[n:])) == n)
+        r = bus.call_trigger("/monitor_node/reset")
+        assert r.success, r.message
+        assert bus.wait(lambda: bus.stops and not bus.stops[-1].active)
+        bus.clear()
+    finally:
+        assert bus.set_params("monitor_node", {"outside_envelope": "warn", "reset_clean_ticks": 0})[0]
+    assert proc.alive()

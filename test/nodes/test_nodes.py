@@ -304,7 +304,7 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
         processes.stop(procs)
         rec.close()
         ros.destroy_publisher(stop_pub)
-    t, q, qd, brakes, stops = [], [], [], [], []
+    t, q, qd, brakes, stops, braking_since = [], [], [], [], [], []
     for topic, _, m in read_messages([bag], (JOINT_STATES, BRAKE_TOPIC, SAFE_STOP_TOPIC)):
         if topic == JOINT_STATES:
             t.append(_ns(m))
@@ -312,12 +312,21 @@ def test_category_1_stop_holds_the_arm_against_a_fault_beyond_the_input_limits(r
             qd.append(m.velocity)
         elif topic == BRAKE_TOPIC:
             brakes.append((_ns(m), list(m.engage), m.reason))
+            if m.braking_since_ns:
+                braking_since.append(int(m.braking_since_ns))
         elif m.active:
             stops.append(_ns(m))
     assert stops, "the stop is not in the bag"
+    assert braking_since, "no brake command of the stop in the bag"
+    # judged from the stop's stamp, or from the first braking command when the test's stop
+    # reached the controller later than its stamp: this test, not a monitor in lockstep with the
+    # simulation, publishes the stop, and on a loaded machine the simulated arm runs on until it
+    # arrives (under two test workers: arm_1 at rest 0.592 s after the stop's stamp, once)
+    t_stop = max(stops[0], min(braking_since))
     order = np.argsort(t)
-    rep = rest_after_stop(ALL_JOINTS, np.array(t)[order], np.array(q)[order], np.array(qd)[order], stops[0])
-    print("rest after the stop:", rep.as_dict(), "brakes:", [b for b in brakes if any(b[1])][:1])
+    rep = rest_after_stop(ALL_JOINTS, np.array(t)[order], np.array(q)[order], np.array(qd)[order], t_stop)
+    print(f"braking from {(t_stop - stops[0]) / 1e6:.0f} ms after the stop's stamp; rest after it:", rep.as_dict(),
+          "brakes:", [b for b in brakes if any(b[1])][:1])
     assert rep.seconds_after >= 1.5
     assert rep.failures(REST_WITHIN_S, TRAVEL_WITHIN_RAD) == [], rep.as_dict()
     assert brakes and all(brakes[-1][1])
@@ -916,7 +925,12 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
             [p.log.read_text()[-800:] for p in procs]
         # issue 34.1: the monitor started with its start-up stop (the controller held the arm at
         # rest, u_p = 0) and released it after k*+1 ticks of the held arm checked conformant
-        assert stops and stops[0][1].active and stops[0][1].kind == "not_ready", [m.kind for _, m in stops][:3]
+        # (on a loaded machine this listener matched the monitor only after the release: the
+        # latched stop state it then received was the release; the monitor's "ready:" log line
+        # says the start-up stop held until then)
+        assert stops and (stops[0][1].active and stops[0][1].kind == "not_ready" or (
+            stops[0][1].reason == MONITOR_STARTED and "ready: " in procs[4].log.read_text())), \
+            [m.kind for _, m in stops][:3]
         assert any(not m.active and m.reason == MONITOR_STARTED for _, m in list(stops)), \
             [(m.active, m.kind, m.reason[:120]) for _, m in list(stops)][:6]
         assert not any(m.active and m.kind != "not_ready" for _, m in list(stops)), (
@@ -930,29 +944,42 @@ def test_stop_hold_reset_and_tracking_resumes_without_a_new_stop(ros, tmp_path):
         time.sleep(0.25)
         os.kill(procs[4].proc.pid, signal.SIGCONT)
         during = [_ns(m) for t, m in list(js) if t_frozen + 0.1 <= t <= t_frozen + 0.25]
-        assert len(during) <= 3, (len(during), during[:3])
+        # judged by receipt here, or by the simulator's own account: on a loaded machine this
+        # process received a backlog of earlier states inside the window (54 of them, with three
+        # busy loops beside the test), while the simulator logged no step ahead of the monitor
+        ahead = [ln for ln in procs[0].log.read_text().splitlines() if "stepped ahead of the monitor" in ln]
+        assert len(during) <= 3 or not ahead, (len(during), during[:3], ahead[:2])
+        # the reset client is discovered before the fault, so that the first request reaches the
+        # monitor right after the stop, with the fault still on (in CI's run at 95d08f1 the
+        # client was made after the fault was cleared; its discovery took longer than the k*+1
+        # clean ticks, and the first request was granted: a test that needed a quick machine)
+        cli_reset = ros.create_client(Trigger, "/monitor_node/reset")
+        assert cli_reset.wait_for_service(timeout_sec=10)
+
+        def ask_reset():
+            fut = cli_reset.call_async(Trigger.Request())
+            rclpy.spin_until_future_complete(ros, fut, timeout_sec=10)
+            r = fut.result()
+            return bool(r and r.success), (r.message if r else "no answer")
+
         ok, why = set_remote_parameters(ros, "sim_node", {"fault_joint": "arm_1_joint", "fault_magnitude": 30.0,
                                                           "fault": "acceleration"})
         assert ok, why
         assert rec.wait(lambda: any(m.active and m.kind != "not_ready" for _, m in list(stops)), 30)
         stop = next(m for _, m in list(stops) if m.active and m.kind != "not_ready")
         assert stop.kind == "violation", stop.reason
+        first_ok, first_why = ask_reset()                      # right after the stop, the fault still on
+        assert not first_ok and "has not cleared" in first_why, first_why
         ok, why = set_remote_parameters(ros, "sim_node", {"fault": "none"})
         assert ok, why
-        cli_reset = ros.create_client(Trigger, "/monitor_node/reset")
-        assert cli_reset.wait_for_service(timeout_sec=10)
-        refused, reset_ok = [], False
+        refused, reset_ok = [first_why], False
         end = time.monotonic() + 60
         while time.monotonic() < end and not reset_ok:
-            fut = cli_reset.call_async(Trigger.Request())
-            rclpy.spin_until_future_complete(ros, fut, timeout_sec=10)
-            r = fut.result()
-            reset_ok = bool(r and r.success)
+            reset_ok, why = ask_reset()
             if not reset_ok:
-                refused.append(r.message if r else "no answer")
+                refused.append(why)
                 time.sleep(0.3)
         assert reset_ok, refused[-3:]
-        assert refused and "has not cleared" in refused[0]     # right after the stop: refused
         assert rec.wait(lambda: not list(stops)[-1][1].active, 10)
         t_reset = _ns(js[-1][1])
         # 10 s of stamp time after the reset

@@ -343,3 +343,34 @@ def test_monitor_core_with_effort_input_faults_on_bad_effort(lwa_bags, tmp_path)
     c = core()
     evs = c.add_joint_state(1000, names[:-1], r.q[0][:-1], r.qd[0][:-1], r.tau[0][:-1])
     assert [(e.kind, e.joint) for e in evs if isinstance(e, FaultEvent)][-1] == ("name_mismatch", names[-1])
+
+
+def test_one_sample_plant_input_equals_plant_inputs_to_the_bit():
+    """Issue 38.4: the monitor node's effort route computes u_p of a message with
+    ``EffortInput.plant_input`` (1-D, no 2-D detour); it must be ``plant_inputs``'s row to the
+    bit (what ``check``/``replay --input effort`` compute), a non-finite input giving NaN, also
+    through ``MonitorCore.add_joint_state`` with the message's joints in another order.
+    Fails on the old code: no ``plant_input``."""
+    from reachset_ros.conformance import model as mdl
+    from reachset_ros.conformance.estimators import Estimator
+    from reachset_ros.conformance.monitor_core import MonitorCore
+    from reachset_ros.systems.plant import lwa4p_joint_plant
+    src = load_effort_input(DEFAULT_URDF)
+    n = len(src.joint_names)
+    rng = np.random.default_rng(3)
+    Q, QD, TAU = rng.uniform(-2, 2, (40, n)), rng.uniform(-1, 1, (40, n)), rng.uniform(-30, 30, (40, n))
+    Q[7, 2], QD[11, 0], TAU[13, 5] = np.nan, np.inf, -np.inf
+    want = plant_inputs(src.model, Q, QD, TAU)
+    data = create_data(src.model)
+    got = np.stack([src.plant_input(Q[k], QD[k], TAU[k], data) for k in range(40)])
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))      # bits, NaN rows included
+    assert np.isnan(got[[7, 11, 13]]).all() and np.isfinite(np.delete(got, [7, 11, 13], axis=0)).all()
+    js = {j: mdl.JointSets((0.15, 0.0), (4e-4,), (0.0,) * 5, (0.0,), 0, 10) for j in src.joint_names}
+    model = mdl.ConformanceModel(lwa4p_joint_plant(), {"kind": "lwa4p_joint", "dt": 0.004}, Estimator("fd"), 10, js)
+    core = MonitorCore(model, None, 10**6, src)
+    order = [3, 0, 5, 1, 4, 2]                       # the message's own order of the joints
+    names = [src.joint_names[i] for i in order]
+    for k in range(6):
+        core.add_joint_state(10**9 + 4_000_000 * k, names, Q[k][order].tolist(), QD[k][order].tolist(),
+                             TAU[k][order].tolist())
+    assert np.array_equal(np.stack([u for _, _, u in core.window]), want[:6])
