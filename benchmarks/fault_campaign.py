@@ -32,9 +32,11 @@ from reachset_ros.domain import pick_domain_id
 from reachset_ros.workflows.campaign import run_campaign
 from reachset_ros.sim import campaign as cp
 from reachset_ros.sim import evidence
+from reachset_ros.stacks import dump_on_sigusr1
 
 
 def main(argv=None):
+    dump_on_sigusr1()     # kill -USR1: where a run that seems hung is (the test sends it on a timeout)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--events", type=int, default=320)
     ap.add_argument("--seed", type=int, default=None, help="seed of the schedule (default 1; --short: 92)")

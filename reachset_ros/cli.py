@@ -121,21 +121,10 @@ def command_in(argv) -> str:
     return word if word in COMMANDS else ""
 
 
-def _stack_dump_on_sigusr1():
-    """``kill -USR1 PID`` prints every thread's Python stack to stderr and the command goes on
-    (:mod:`faulthandler`): what a command that seems hung is doing, for its user and for a test
-    that gives up on it."""
-    import faulthandler
-    import signal
-    try:
-        faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)
-    except (AttributeError, ValueError, OSError):     # no real stderr (an embedding host)
-        pass
-
-
 def main(argv=None):
     if argv is None:                # a process of its own (the console script, python -m)
-        _stack_dump_on_sigusr1()
+        from .stacks import dump_on_sigusr1
+        dump_on_sigusr1()
     streams = sys.stdout, sys.stderr
     # both: ``reachset ... 2>&1 | true`` closes the pipe stderr writes to as well
     sys.stdout, sys.stderr = (_ClosedPipeSafe(s) if not isinstance(s, _ClosedPipeSafe) and hasattr(s, "fileno")

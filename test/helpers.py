@@ -12,8 +12,13 @@ not need ROS.
 * :class:`Bus` - the test's side of DDS for the node fault tests (publishers, service
   calls, subscriptions spun by their own thread);
 * :class:`Recorder` - subscriptions to given topics spun by their own thread;
-* :func:`wait_until` - poll a condition until a timeout.
+* :func:`wait_until` - poll a condition until a timeout;
+* :func:`run_or_explain` - run a command that starts nodes; on a hang, fail with every
+  process' stacks and the logs' tails.
 """
+import os
+import signal
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -131,6 +136,55 @@ def wait_until(cond, timeout=15.0, poll=0.01):
         time.sleep(poll)
     return bool(cond())
 
+
+
+def processes_naming(path):
+    """The pids of this machine's processes whose command line contains ``path`` (the nodes a
+    workflow started: their parameter files lie in its work directory)."""
+    key = str(path).encode()
+    pids = []
+    for d in os.listdir("/proc"):
+        if d.isdigit() and int(d) != os.getpid():
+            try:
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    if key in f.read():
+                        pids.append(int(d))
+            except OSError:
+                pass
+    return pids
+
+
+def run_or_explain(cmd, *, timeout, workdir=None, env=None, log_lines=40):
+    """Run ``cmd`` (its output captured) and return its :class:`subprocess.CompletedProcess`.
+
+    When it is still running after ``timeout`` s (a hang), SIGUSR1 goes to it and to every
+    process naming ``workdir`` on its command line (each prints every thread's stack:
+    :mod:`reachset_ros.stacks`), then all of them are killed, and the test fails with the
+    command's output tails and the last ``log_lines`` lines of each ``*.log`` in ``workdir``
+    (a node's stacks end its log). A hang then names the line it hangs on, in the CI log."""
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) as proc:
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            import pytest
+            others = processes_naming(workdir) if workdir else []
+            for pid in (proc.pid, *others):
+                try:
+                    os.kill(pid, signal.SIGUSR1)
+                except ProcessLookupError:
+                    pass
+            time.sleep(3.0)
+            for pid in (proc.pid, *others):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            out, err = proc.communicate()
+            tails = "".join(f"\n--- {log}\n" + "\n".join(log.read_text(errors="replace").splitlines()[-log_lines:])
+                            for log in sorted(Path(workdir).rglob("*.log"))) if workdir else ""
+            pytest.fail(f"{' '.join(map(str, cmd))} still running after {timeout} s\nstdout (tail): {out[-4000:]}\n"
+                        f"stderr (tail): {err[-12000:]}{tails}", pytrace=False)
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 
 def spin_until(node, cond, timeout):

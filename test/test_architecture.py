@@ -37,7 +37,7 @@ MAX_POSITIONAL = 8
 _LEAVES = {"errors", "atomic", "defaults", "guarantees"}
 #: the pure core below the process and ROS layers
 _CORE = _LEAVES | {"_lazy", "sets", "systems", "robot", "conformance", "bags", "synthesis", "fleet", "sim"}
-_PROCESS = {"domain", "params_file", "processes"}
+_PROCESS = {"domain", "params_file", "processes", "stacks"}
 
 #: unit -> the reachset_ros units it may import (its own unit always). For the pure core and the
 #: leaves exactly what they import today; the layers above the core (nodes, workflows, commands)
@@ -68,10 +68,12 @@ ALLOWED = {
     "report": {"errors", "atomic", "defaults", "guarantees", "sets", "systems", "conformance", "bags", "synthesis",
                "plots"},
     "processes": set(),
+    # every thread's stack on SIGUSR1 (a process that seems hung): the command line, the nodes
+    "stacks": set(),
     "nodes": _CORE | _PROCESS,
     "workflows": _CORE | _PROCESS | {"nodes", "plots", "report"},
     "commands": _CORE | _PROCESS | {"nodes", "plots", "report", "workflows"},
-    "cli": {"errors", "commands"},
+    "cli": {"errors", "commands", "stacks"},
 }
 #: units that may import rclpy and ROS interface packages
 ROS_UNITS = {"nodes", "workflows"}

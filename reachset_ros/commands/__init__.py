@@ -9,7 +9,7 @@ May import: everything below the command line: the pure core (:mod:`reachset_ros
 :mod:`reachset_ros.robot`, :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`,
 :mod:`reachset_ros.synthesis`, :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`), the
 processes (:mod:`reachset_ros.domain`, :mod:`reachset_ros.params_file`,
-:mod:`reachset_ros.processes`), :mod:`reachset_ros.nodes`, :mod:`reachset_ros.workflows`,
+:mod:`reachset_ros.processes`, :mod:`reachset_ros.stacks`), :mod:`reachset_ros.nodes`, :mod:`reachset_ros.workflows`,
 :mod:`reachset_ros.plots` and :mod:`reachset_ros.report`. Only the command line (``reachset_ros.cli``) imports this package.
 """
 import json

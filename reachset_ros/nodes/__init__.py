@@ -12,6 +12,6 @@ May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros._lazy`
 :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`, :mod:`reachset_ros.robot`,
 :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`, :mod:`reachset_ros.synthesis`,
 :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`) and the processes
-(:mod:`reachset_ros.domain`, :mod:`reachset_ros.params_file`, :mod:`reachset_ros.processes`);
+(:mod:`reachset_ros.domain`, :mod:`reachset_ros.params_file`, :mod:`reachset_ros.processes`, :mod:`reachset_ros.stacks`);
 not the workflows, commands or the command line. Nothing in the core imports this package.
 """

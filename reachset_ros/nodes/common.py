@@ -17,6 +17,7 @@ from rclpy.task import Future
 
 from ..errors import ReachsetError
 from ..processes import use_dds_profiles
+from ..stacks import dump_on_sigusr1
 from . import scheduling
 
 try:
@@ -99,6 +100,7 @@ def spin_node(node_cls, args=None, **kwargs):
     if "-h" in own or "--help" in own:
         print(node_help(node_cls))        # before rclpy: nothing starts
         sys.exit(0)
+    dump_on_sigusr1()                     # kill -USR1: every thread's stack in the node's log
     use_dds_profiles()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:

@@ -20,6 +20,6 @@ May import: the pure core (:mod:`reachset_ros.errors`, :mod:`reachset_ros._lazy`
 :mod:`reachset_ros.robot`, :mod:`reachset_ros.conformance`, :mod:`reachset_ros.bags`,
 :mod:`reachset_ros.synthesis`, :mod:`reachset_ros.fleet`, :mod:`reachset_ros.sim`,
 :mod:`reachset_ros.plots`, :mod:`reachset_ros.report`), the processes (:mod:`reachset_ros.domain`,
-:mod:`reachset_ros.params_file`, :mod:`reachset_ros.processes`) and the ROS adapters
+:mod:`reachset_ros.params_file`, :mod:`reachset_ros.processes`, :mod:`reachset_ros.stacks`) and the ROS adapters
 (:mod:`reachset_ros.nodes`); only the commands and the CLI import this package.
 """

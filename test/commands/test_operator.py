@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import run_or_explain
 
 pytestmark = pytest.mark.dds   # real DDS participants / node processes
 
@@ -36,21 +37,10 @@ OPERATOR_TIMEOUT = ["--timeout", "60"]
 
 def cli(*args, env=None):
     extra = OPERATOR_TIMEOUT if args and args[0] in ("status", "watch", "stop", "reset", "gains") else []
-    cmd = [sys.executable, "-m", "reachset_ros.cli", *args, *extra]
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) as proc:
-        try:
-            out, err = proc.communicate(timeout=CMD_TIMEOUT)
-        except subprocess.TimeoutExpired:       # a hang: its stacks (SIGUSR1, reachset_ros.cli) and the nodes' logs
-            proc.send_signal(signal.SIGUSR1)
-            time.sleep(2.0)
-            proc.kill()
-            out, err = proc.communicate()
-            work = args[args.index("--workdir") + 1] if "--workdir" in args else None
-            tails = "".join(f"\n--- {log.name}\n" + "\n".join(log.read_text(errors="replace").splitlines()[-15:])
-                            for log in sorted(Path(work).glob("*.log"))) if work else ""
-            pytest.fail(f"reachset {' '.join(args)} still running after {CMD_TIMEOUT} s\nstdout: {out}\n"
-                        f"stderr: {err}{tails}")
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+    work = args[args.index("--workdir") + 1] if "--workdir" in args else None
+    # a hang: the command's and the nodes' stacks (SIGUSR1) and the nodes' logs
+    return run_or_explain([sys.executable, "-m", "reachset_ros.cli", *args, *extra], timeout=CMD_TIMEOUT,
+                          workdir=work, env=env)
 
 
 class Listener:
