@@ -77,7 +77,7 @@ from .gain_params import (current_values, declare_certificate_parameters, declar
                           validate_pair)
 from . import estimate_watch, monitor_health
 from .pair_gate import check_running_pair
-from .param_callbacks import StagedRequest, add_parameter_callbacks, repeats_current
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 DEFAULT_JOINTS = list(robot.JOINT_NAMES)
 
@@ -169,7 +169,8 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
         self.create_timer(1.0, self.publish_diagnostics, clock=wall)
         self.create_timer(0.002, self.on_wait_timer, clock=wall)
         self.param_request = StagedRequest()
-        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters,
+                                take_repeats=True)   # a resent request runs no gate again
 
     #: True in the managed (lifecycle) variant: configure() runs on the configure transition
     MANAGED = False
@@ -285,11 +286,8 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
 
     def on_set_parameters(self, params):
         """Validate a request (on_set): the pair's gate with the proposed values and model; a
-        refused request is logged (PRIVILEGED) and leaves the running configuration as it was; a
-        repeat of the running values (:func:`repeats_current`) is accepted as it is."""
-        if repeats_current(self, params):
-            self.param_request.hold(params, None)
-            return SetParametersResult(successful=True)
+        refused request is logged (PRIVILEGED) and leaves the running configuration as it was
+        (a repeat of the running values never comes here: ``take_repeats``)."""
         result, cfg = self.check_request(params)
         if result.successful:
             self.param_request.hold(params, cfg)
@@ -300,8 +298,6 @@ class ControllerNode(monitor_health.MonitorWatch, Node):
     def post_set_parameters(self, params):
         """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
         cfg = self.param_request.take(params)
-        if cfg is None:             # a repeat: nothing changed
-            return
         self.apply(cfg, "gain change")
         log_gain_change(self, params, SetParametersResult(successful=True), cfg)
 

@@ -29,7 +29,7 @@ from ..robot.dynamics import JOINT_NAMES
 from .common import TICK_QOS, declare_realtime_priority, desc, spin_node, stamp_ns
 from .gain_params import (check_running_pair, current_values, declare_certificate_parameters, declare_gain_parameters,
                           log_envelope, log_gain_change, proposed_values, validate_pair)
-from .param_callbacks import StagedRequest, add_parameter_callbacks, repeats_current
+from .param_callbacks import StagedRequest, add_parameter_callbacks
 
 
 class ObserverNode(Node):
@@ -56,7 +56,8 @@ class ObserverNode(Node):
         self.create_subscription(JointState, "joint_states", self.on_joint_states, TICK_QOS)
         self.create_subscription(PlantInput, "plant_input", self.on_plant_input, TICK_QOS)
         self.param_request = StagedRequest()
-        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters)
+        add_parameter_callbacks(self, on_set=self.on_set_parameters, post_set=self.post_set_parameters,
+                                take_repeats=True)   # a resent request runs no gate again
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.reported_bad = 0
         self.create_timer(1.0, self.publish_diagnostics)
@@ -111,11 +112,8 @@ class ObserverNode(Node):
         self.pending = None  # (stamp, y per joint) awaiting its plant input
 
     def on_set_parameters(self, params):
-        """Validate a request (on_set); a refused one is logged (PRIVILEGED) and changes nothing;
-        a repeat of the running values (:func:`repeats_current`) is accepted as it is."""
-        if repeats_current(self, params):
-            self.param_request.hold(params, None)
-            return SetParametersResult(successful=True)
+        """Validate a request (on_set); a refused one is logged (PRIVILEGED) and changes nothing
+        (a repeat of the running values never comes here: ``take_repeats``)."""
         model = self.model
         try:
             for p in params:
@@ -134,8 +132,6 @@ class ObserverNode(Node):
     def post_set_parameters(self, params):
         """Apply the configuration :meth:`on_set_parameters` validated for this request (post_set)."""
         cfg = self.param_request.take(params)
-        if cfg is None:             # a repeat: nothing changed
-            return
         self.apply(cfg)
         log_gain_change(self, params, SetParametersResult(successful=True), cfg)
 

@@ -33,8 +33,32 @@ class StagedRequest:
         return request[1]
 
 
-def add_parameter_callbacks(node, *, on_set, post_set):
-    """Register ``on_set`` (validate) and ``post_set`` (apply) on ``node``."""
+def add_parameter_callbacks(node, *, on_set, post_set, take_repeats=False):
+    """Register ``on_set`` (validate) and ``post_set`` (apply) on ``node``.
+
+    With ``take_repeats``, a request that repeats the running values (:func:`repeats_current`)
+    is accepted as it is: neither callback sees it (no gate, no partner asked, nothing applied,
+    no audit line: nothing changed). The observer and controller nodes ask for this: their gate
+    asks the other node of the pair, and a resent request must not do that again."""
+    if take_repeats:
+        repeat = []                   # the request on_set took as a repeat, until its post_set
+
+        def on_set_or_repeat(params):
+            if repeats_current(node, params):
+                repeat[:] = [params]
+                from rcl_interfaces.msg import SetParametersResult
+                return SetParametersResult(successful=True)
+            repeat.clear()
+            return on_set(params)
+
+        def post_set_unless_repeat(params):
+            if repeat and repeat[0] is params:
+                repeat.clear()
+                return
+            post_set(params)
+        node.add_on_set_parameters_callback(on_set_or_repeat)
+        node.add_post_set_parameters_callback(post_set_unless_repeat)
+        return
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
 

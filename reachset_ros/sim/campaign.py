@@ -182,6 +182,15 @@ class Outcome:
         """The first stop's arrival after :meth:`latency_from` (needs a stop)."""
         return self.stops[0][1] - self.latency_from()
 
+    def acted_latency_ns(self):
+        """The first stop's earliest known arrival where it acts, after :meth:`latency_from`
+        (needs a stop): the controller's (:attr:`controller_ns`, itself an upper bound) when the
+        bag has it, else the listener's (:meth:`latency_ns`). A stop is judged by its effect: the
+        campaign's listener is a normal-priority process the burners starve (the long campaign's
+        event 132: braked 20 ms after the fault, received by the listener at 1,288 ms)."""
+        arrival = min(self.stops[0][1], self.controller_ns) if self.controller_ns else self.stops[0][1]
+        return arrival - self.latency_from()
+
     def as_dict(self):
         d = asdict(self)
         d["event"] = self.event.label()
@@ -353,8 +362,8 @@ def score(outcomes, apparatus_stops=()):
     -------
     dict
         ``faults_injected`` (events expecting a stop), ``stops`` (of those, stopped within
-        the event's detection window, :func:`detect_within_s`), ``missed_stops`` (no stop, or
-        one after the window), ``false_stops`` (a stop in a fault-free stretch or after an event
+        the event's detection window, :func:`detect_within_s`, judged where the stop acts:
+        :meth:`Outcome.acted_latency_ns`), ``missed_stops`` (no stop, or one after the window), ``false_stops`` (a stop in a fault-free stretch or after an event
         expecting none), ``either`` (tolerance-band freezes: events, stops),
         ``fault_free_minutes`` (monitored, simulated), ``latency_ms`` (p50/p99/max of the
         arrival on the simulation's clock after the fault's stamp, every fault whose stop
@@ -384,7 +393,10 @@ def score(outcomes, apparatus_stops=()):
     # keeps whatever stop it has when it stops waiting, possibly a later one)
     # (a frozen sensor stopped before its joint moved at > FROZEN_MOTION: its window had not
     # begun, so the stop is not late; reported apart with its latency from the fault)
-    late = [o for o in arrived if not o.stopped_before_motion and o.latency_ns() > detect_within_s(o.event) * 1e9]
+    # late: judged where the stop acts, the controller when the bag shows its braking
+    # (Outcome.acted_latency_ns), else the listener
+    late = [o for o in arrived
+            if not o.stopped_before_motion and o.acted_latency_ns() > detect_within_s(o.event) * 1e9]
     stopped = [o for o in arrived if o not in late]
     missed = [o for o in faults if not o.stops] + late
     false = _false_stops(outcomes)
@@ -408,7 +420,7 @@ def score(outcomes, apparatus_stops=()):
         **_step_rows(outcomes),
         "apparatus_stops": [list(a) for a in apparatus_stops],
         "misses": [{"event": o.event.label(), "fault_ns": o.fault_ns, "bag": o.bag,
-                    "note": (f"stop {o.latency_ns() * 1e-6:.0f} ms after the fault's stamp, "
+                    "note": (f"stop {o.acted_latency_ns() * 1e-6:.0f} ms after the fault's stamp, "
                              f"after the {detect_within_s(o.event):g} s window" if o in late else o.note)}
                    for o in missed],
         "false": false,

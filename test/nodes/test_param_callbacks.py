@@ -7,7 +7,9 @@ import pytest
 from rclpy.parameter import Parameter
 
 from reachset_ros.errors import ReachsetError
-from reachset_ros.nodes.param_callbacks import StagedRequest, repeats_current
+from rcl_interfaces.msg import SetParametersResult
+
+from reachset_ros.nodes.param_callbacks import StagedRequest, add_parameter_callbacks, repeats_current
 
 #: the tests with a node make a real DDS participant
 dds = pytest.mark.dds
@@ -49,3 +51,23 @@ def test_a_staged_request_is_taken_once_and_only_for_its_own_parameters():
     assert staged.take(params) == "cfg"
     with pytest.raises(ReachsetError):
         staged.take(params)
+
+
+@dds
+def test_take_repeats_keeps_a_repeat_from_both_callbacks_and_passes_the_rest(node):
+    seen = []
+
+    def on_set(params):
+        seen.append(("on_set", [p.name for p in params]))
+        return SetParametersResult(successful=True)
+
+    def post_set(params):
+        seen.append(("post_set", [p.name for p in params]))
+    add_parameter_callbacks(node, on_set=on_set, post_set=post_set, take_repeats=True)
+    assert node.set_parameters_atomically([Parameter("omega", value=[12.0, 14.0])]).successful   # a repeat
+    assert seen == []
+    assert node.set_parameters_atomically([Parameter("omega", value=[13.0, 14.0])]).successful
+    assert seen == [("on_set", ["omega"]), ("post_set", ["omega"])]
+    assert node.set_parameters_atomically([Parameter("model_file", value="/tmp/m.yaml")]).successful  # read again
+    assert seen[2:] == [("on_set", ["model_file"]), ("post_set", ["model_file"])]
+    assert list(node.get_parameter("omega").value) == [13.0, 14.0]

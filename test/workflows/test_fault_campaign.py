@@ -288,3 +288,25 @@ def test_the_stops_arrival_at_the_controller_is_read_from_the_bags_brake_command
     assert "arrival at the controller, bias" in cp.table(s)
     s = cp.score([after_reset])
     assert s["controller_unmeasured"] == [after_reset.event.label()]
+
+
+def test_a_stop_the_controller_acted_on_in_time_is_not_late_however_late_the_listener():
+    """The long campaign's event 132 (docs/reliability.md): a frozen sensor's stop stamped 16 ms
+    after the fault, the controller braking from 20 ms, the starved listener receiving it at
+    1,288 ms. Scored by the listener it was a missed stop; judged by its effect it is in time.
+    Without the controller's arrival in the bag the listener's still decides. (A bias here: the
+    frozen sensor's own window rules are tested apart.)"""
+    T0, MS = 10**18, 1_000_000
+    ev = cp.Event(132, "sim", 1.0, "stop", fault="bias", joint="a", burners=True)
+    acted = cp.Outcome(ev, fault_ns=T0, stops=[(T0 + 16 * MS, T0 + 1288 * MS, "violation: a")],
+                       controller_ns=T0 + 20 * MS)
+    assert acted.acted_latency_ns() == 20 * MS
+    s = cp.score([acted])
+    assert s["missed_stops"] == 0 and s["stops"] == 1
+    assert s["latency_ms"]["max"] == 1288.0                     # the listener's, still reported
+    unknown = cp.Outcome(ev, fault_ns=T0, stops=[(T0 + 16 * MS, T0 + 1288 * MS, "violation: a")])
+    s = cp.score([unknown])
+    assert s["missed_stops"] == 1 and "1288 ms after the fault's stamp" in s["misses"][0]["note"]
+    slow = cp.Outcome(ev, fault_ns=T0, stops=[(T0 + 16 * MS, T0 + 30 * MS, "violation: a")],
+                      controller_ns=T0 + 1500 * MS)            # the listener's arrival is the earlier
+    assert slow.acted_latency_ns() == 30 * MS and cp.score([slow])["missed_stops"] == 0
