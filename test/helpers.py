@@ -230,7 +230,7 @@ class Bus:
         self.diags = {}
         deep = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
         L = self.listener
-        L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
+        self.status_sub = L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
         L.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
         L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
         L.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, deep)
@@ -275,6 +275,13 @@ class Bus:
         for s in self.active_stops():
             seen.setdefault((stamp_ns(s.header.stamp), s.kind, s.joint, s.reason), s)
         return list(seen.values())
+
+    def status_matched(self):
+        """Whether this bus' ``/conformance/status`` subscription has matched a publisher: a
+        monitor's statuses published before that are lost (the topic is volatile). The graph
+        (``count_publishers``) shows a publisher before the endpoints match: a fresh clone's run
+        that waited for that lost the statuses of the first 41 of 93 ticks."""
+        return self.status_sub.get_publisher_count() > 0
 
     def statuses(self, ts):
         lo, hi = ts[0], ts[-1]

@@ -29,7 +29,7 @@ def monitor(bus, tmp_path_factory):
                                          "window_dir": str(d / "windows")}, d)
     try:
         assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                        and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+                        and bus.status_matched(), 30), proc.log.read_text()
         bus.clear()
         bus.make_ready()            # the start-up stop released by checked, conformant ticks
         yield proc, path, d

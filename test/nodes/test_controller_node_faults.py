@@ -714,7 +714,7 @@ def start_stop_monitor(tmp_path):
 def stop_on_a_nan(bus, proc, seed):
     """Once the monitor is connected: 60 ticks with a NaN at tick 50, and its active stop."""
     assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                    and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+                    and bus.status_matched(), 30), proc.log.read_text()
     bus.clear()
     Y, U = stream(60, seed=seed)
     Y[50, 1] = math.nan

@@ -25,7 +25,7 @@ def mon(bus, tmp_path_factory):
                                             "reset_clean_ticks": 0, "window_dir": str(d / "windows")}, d)
     try:
         assert bus.wait(lambda: bus.js.get_subscription_count() and bus.pi.get_subscription_count()
-                        and bus.listener.count_publishers("/conformance/status"), 30), proc.log.read_text()
+                        and bus.status_matched(), 30), proc.log.read_text()
         bus.clear()
         bus.make_ready()
         yield proc, path, tight
