@@ -232,7 +232,7 @@ class Bus:
         L = self.listener
         self.status_sub = L.create_subscription(ConformanceStatus, "conformance/status", self.status.append, deep)
         L.create_subscription(SafeStop, "safe_stop", self.stops.append, SAFE_STOP_QOS)
-        L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
+        self.inputs_sub = L.create_subscription(PlantInput, "plant_input", self.inputs.append, deep)
         L.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, deep)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(L)
@@ -282,6 +282,11 @@ class Bus:
         (``count_publishers``) shows a publisher before the endpoints match: a fresh clone's run
         that waited for that lost the statuses of the first 41 of 93 ticks."""
         return self.status_sub.get_publisher_count() > 0
+
+    def inputs_matched(self):
+        """Whether this bus' ``/plant_input`` subscription has matched a publisher (a
+        controller's commands before that are lost, as for :meth:`status_matched`)."""
+        return self.inputs_sub.get_publisher_count() > 0
 
     def statuses(self, ts):
         lo, hi = ts[0], ts[-1]

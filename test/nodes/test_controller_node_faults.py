@@ -118,7 +118,7 @@ def controller(bus, tmp_path_factory):
     proc = start_controller(d, model)
     try:
         assert bus.wait(lambda: bus.est.get_subscription_count() and bus.ref_subscribers()
-                        and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
+                        and bus.inputs_matched(), 30), proc.log.read_text()
         yield proc, model, d
     finally:
         processes.stop([proc])
@@ -318,7 +318,7 @@ class TestStopWithoutEstimatesOnTheArmsClock:
         try:
             assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1
                             and clock_pub.get_subscription_count() >= 1
-                            and bus.listener.count_publishers("/plant_input") >= 1, 30), proc.log.read_text()
+                            and bus.inputs_matched(), 30), proc.log.read_text()
             ts = stamps(2)
             stop_pub.publish(SafeStop(active=False, kind="reset", reason="test: no stop"))
             for _ in range(10):     # /clock, as a simulation publishes it every tick
@@ -799,7 +799,7 @@ class TestPrivilegedOperations:
             assert "refused" in lines[0] and "granted" in lines[1] and "/faults_caller" in lines[1]
             assert "through ~/reset:" in lines[2] and "caller not named" in lines[2] and "no reason given" in lines[2]
             # gain changes: granted and refused, each with its reason
-            assert bus.wait(lambda: bus.listener.count_publishers("/plant_input") >= 1, 30)
+            assert bus.wait(lambda: bus.inputs_matched(), 30)
             ok, why = bus.set_params("controller_node", {"omega": [12.0], "change_reason": "test: faster"})
             assert ok, why
             ok, why = bus.set_params("controller_node", {"omega": [-1.0], "change_reason": "test: bad"})
