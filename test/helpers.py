@@ -13,6 +13,8 @@ not need ROS.
   calls, subscriptions spun by their own thread);
 * :class:`Recorder` - subscriptions to given topics spun by their own thread;
 * :func:`wait_until` - poll a condition until a timeout;
+* :func:`suite_processes` - the node processes naming a work directory (:func:`cmdline`,
+  :func:`running`);
 * :func:`run_or_explain` - run a command that starts nodes; on a hang, fail with every
   process' stacks and the logs' tails.
 """
@@ -138,27 +140,47 @@ def wait_until(cond, timeout=15.0, poll=0.01):
 
 
 
-def processes_naming(path):
-    """The pids of this machine's processes whose command line contains ``path`` (the nodes a
-    workflow started: their parameter files lie in its work directory)."""
-    key = str(path).encode()
-    pids = []
-    for d in os.listdir("/proc"):
-        if d.isdigit() and int(d) != os.getpid():
-            try:
-                with open(f"/proc/{d}/cmdline", "rb") as f:
-                    if key in f.read():
-                        pids.append(int(d))
-            except OSError:
-                pass
-    return pids
+def cmdline(pid):
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return None
+
+
+def running(pid):
+    """True while ``pid`` exists and is not a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def suite_processes(marker, domain=None):
+    """Processes of this user whose command line mentions reachset_ros and ``marker`` (a
+    working directory), or whose environment has ``ROS_DOMAIN_ID=domain``."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit() or int(d.name) == os.getpid():
+            continue
+        cmd = cmdline(d.name)
+        if cmd is None or not running(d.name):
+            continue
+        try:
+            env = (d / "environ").read_bytes().split(b"\0")
+        except OSError:
+            env = []
+        in_domain = domain is not None and f"ROS_DOMAIN_ID={domain}".encode() in env
+        if ("reachset_ros" in cmd or "reachset" in cmd) and (marker in cmd or in_domain):
+            found.append((int(d.name), cmd))
+    return found
 
 
 def run_or_explain(cmd, *, timeout, workdir=None, env=None, log_lines=40):
     """Run ``cmd`` (its output captured) and return its :class:`subprocess.CompletedProcess`.
 
     When it is still running after ``timeout`` s (a hang), SIGUSR1 goes to it and to every
-    process naming ``workdir`` on its command line (each prints every thread's stack:
+    node naming ``workdir`` on its command line (:func:`suite_processes`) (each prints every thread's stack:
     :mod:`reachset_ros.stacks`), then all of them are killed, and the test fails with the
     command's output tails and the last ``log_lines`` lines of each ``*.log`` in ``workdir``
     (a node's stacks end its log). A hang then names the line it hangs on, in the CI log."""
@@ -167,7 +189,7 @@ def run_or_explain(cmd, *, timeout, workdir=None, env=None, log_lines=40):
             out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
             import pytest
-            others = processes_naming(workdir) if workdir else []
+            others = [pid for pid, _ in suite_processes(str(workdir))] if workdir else []
             for pid in (proc.pid, *others):
                 try:
                     os.kill(pid, signal.SIGUSR1)

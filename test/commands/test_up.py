@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import cmdline, running, suite_processes
 
 from reachset_ros import processes, params_file
 from reachset_ros.domain import DOMAIN_RANGE, domain_of_port, domains_in_use, pick_domain_id
@@ -134,42 +135,6 @@ def test_up_bad_input_exits_2_with_one_line_and_starts_nothing(tmp_path, case):
 
 
 # ---------------------------------------------------------------- stopping children
-
-def cmdline(pid):
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return None
-
-
-def running(pid):
-    """True while ``pid`` exists and is not a zombie."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
-
-
-def suite_processes(marker, domain=None):
-    """Processes of this user whose command line mentions reachset_ros and ``marker`` (a
-    working directory), or whose environment has ``ROS_DOMAIN_ID=domain``."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit() or int(d.name) == os.getpid():
-            continue
-        cmd = cmdline(d.name)
-        if cmd is None or not running(d.name):
-            continue
-        try:
-            env = (d / "environ").read_bytes().split(b"\0")
-        except OSError:
-            env = []
-        in_domain = domain is not None and f"ROS_DOMAIN_ID={domain}".encode() in env
-        if ("reachset_ros" in cmd or "reachset" in cmd) and (marker in cmd or in_domain):
-            found.append((int(d.name), cmd))
-    return found
-
 
 def kill_left_over(marker):
     """Clean-up after a failed test: SIGKILL whatever of the suite is still running."""
