@@ -225,16 +225,23 @@ class Recorder:
     def __init__(self, name, topics):
         self.node = Node(name)
         self.msgs = {t: [] for t in topics}
+        self.subs = {}
         for topic, cls in topics.items():
             qos = SAFE_STOP_QOS if cls is SafeStop else QoSProfile(depth=5000)
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self.msgs[t].append((time.monotonic(), m)),
-                                          qos)
+            self.subs[topic] = self.node.create_subscription(
+                cls, topic, lambda m, t=topic: self.msgs[t].append((time.monotonic(), m)), qos)
         self.ex = SingleThreadedExecutor()
         self.ex.add_node(self.node)
         threading.Thread(target=self.ex.spin, daemon=True).start()
 
     def wait(self, cond, timeout):
         return wait_until(cond, timeout, poll=0.02)
+
+    def matched(self, topic):
+        """Whether ``topic``'s subscription has matched a publisher (as :meth:`Bus.status_matched`:
+        the graph shows a publisher before the endpoints match, and a volatile topic's messages
+        sent before the match are lost)."""
+        return self.subs[topic].get_publisher_count() > 0
 
     def close(self):
         self.ex.shutdown()

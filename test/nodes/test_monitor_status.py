@@ -75,13 +75,13 @@ def test_the_node_times_each_whole_tick_and_publishes_the_same_status(tmp_path):
     from reachset_ros.nodes.monitor_node import MonitorNode
     node, ear = MonitorNode(), Node("test_ear")
     got, diag = [], []
-    ear.create_subscription(ConformanceStatus, "conformance/status", got.append, STATUS_QOS)
+    sub = ear.create_subscription(ConformanceStatus, "conformance/status", got.append, STATUS_QOS)
     ear.create_subscription(DiagnosticArray, "diagnostics", diag.append, 10)
     ex = SingleThreadedExecutor()
     ex.add_node(ear)
     try:
         end = time.monotonic() + 30
-        while not ear.count_publishers("conformance/status") or not node.count_subscribers("conformance/status"):
+        while not sub.get_publisher_count() or not node.status_pub.get_subscription_count():   # both ends matched
             ex.spin_once(timeout_sec=0.05)
             assert time.monotonic() < end
         Y, U = stream(200)

@@ -11,6 +11,7 @@ from dataclasses import replace
 
 import pytest
 
+from helpers import spin_until
 from reachset_ros import processes
 from reachset_ros.conformance import model as mdl
 from reachset_ros.conformance.estimators import Estimator
@@ -243,14 +244,6 @@ def _stops(ros):
     return got
 
 
-def _spin_until(ros, cond, timeout):
-    import rclpy
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        rclpy.spin_once(ros, timeout_sec=0.1)
-    return cond()
-
-
 def test_a_monitor_checks_the_running_pair_under_its_model(ros, pair, tmp_path):
     """Row G19, the monitor's side: the pair runs omega 26 (certified under the nodes' model,
     set while no monitor ran); a monitor started with the wide model, under which omega 26
@@ -270,7 +263,7 @@ def test_a_monitor_checks_the_running_pair_under_its_model(ros, pair, tmp_path):
                                            "window_dir": str(tmp_path / "windows")}, tmp_path)
     try:
         held = lambda: any(m.kind == "not_ready" and "[guarantee G19" in m.reason for m in stops)  # noqa: E731
-        assert _spin_until(ros, held, 120.0), f"{stops[-1:]}: {mon.log.read_text()[-2000:]}"
+        assert spin_until(ros, held, 120.0), f"{stops[-1:]}: {mon.log.read_text()[-2000:]}"
         reason = [m.reason for m in stops if "[guarantee G19" in m.reason][-1]
         assert "controller_node, observer_node" in reason and "R*_u" in reason, reason
         assert stops[-1].active and stops[-1].kind == "not_ready", stops[-1]
@@ -280,7 +273,7 @@ def test_a_monitor_checks_the_running_pair_under_its_model(ros, pair, tmp_path):
         ok, why = set_remote_parameters(ros, "controller_node", {"omega": [20.0]}, timeout=60.0)
         assert ok, why
         lifted = lambda: stops[-1].kind == "not_ready" and "certified under this model now" in stops[-1].reason  # noqa: E731
-        assert _spin_until(ros, lifted, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
+        assert spin_until(ros, lifted, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
         # omega 26 again: refused by the controller's gate once its process has discovered the
         # monitor; a controller that has not yet (a fresh one, on a loaded machine) accepts it, and
         # then the monitor's own check of the changed pair stops naming G19 (fail-safe either way)
@@ -288,7 +281,7 @@ def test_a_monitor_checks_the_running_pair_under_its_model(ros, pair, tmp_path):
         ok, why = set_remote_parameters(ros, "controller_node", {"omega": [26.0]}, timeout=60.0)
         if ok:
             caught = lambda: any(m.active and "[guarantee G19" in m.reason for m in stops[n:])  # noqa: E731
-            assert _spin_until(ros, caught, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
+            assert spin_until(ros, caught, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
         else:
             assert "[guarantee G19" in why, why
     finally:
@@ -311,7 +304,7 @@ def test_a_monitor_checks_the_running_pair_under_its_model(ros, pair, tmp_path):
         # appearance is then checked under the new model (the first test of this module's pair
         # of G19 tests shows that side)
         seen = lambda: "the running pair is certified under this model" in mon.log.read_text()  # noqa: E731
-        assert _spin_until(ros, seen, 120.0), mon.log.read_text()[-2000:]
+        assert spin_until(ros, seen, 120.0), mon.log.read_text()[-2000:]
         ok, why = set_remote_parameters(ros, "monitor_node", {"model_file": str(wide)}, timeout=60.0)
         assert not ok and "[guarantee G19" in why and "R*_u" in why and "controller_node" in why, why
         got, _ = get_remote_parameters(ros, "monitor_node", ["model_file"])
@@ -335,7 +328,7 @@ def _monitor_first(ros, tmp_path):
     mon = processes.start("monitor_node", {"joints": JOINTS, "model_file": str(wide),
                                            "window_dir": str(tmp_path / "windows")}, tmp_path)
     try:
-        assert _spin_until(ros, lambda: any(m.kind == "not_ready" for m in stops), 60.0), mon.log.read_text()[-1500:]
+        assert spin_until(ros, lambda: any(m.kind == "not_ready" for m in stops), 60.0), mon.log.read_text()[-1500:]
     except BaseException:
         processes.stop([mon])
         raise
@@ -356,7 +349,7 @@ def test_a_monitor_checks_a_pair_that_appears_after_it_started(ros, tmp_path):
         assert not any("G19" in m.reason for m in stops), [m.reason for m in stops]
         procs = _start_pair(ros, path, tmp_path, omega=[26.0])
         held = lambda: any(m.kind == "not_ready" and "[guarantee G19" in m.reason for m in stops)  # noqa: E731
-        assert _spin_until(ros, held, 120.0), f"{stops[-1:]}: {mon.log.read_text()[-2000:]}"
+        assert spin_until(ros, held, 120.0), f"{stops[-1:]}: {mon.log.read_text()[-2000:]}"
         reason = [m.reason for m in stops if "[guarantee G19" in m.reason][-1]
         assert "controller_node, observer_node" in reason and "R*_u" in reason, reason
         assert "appeared: checking the running pair" in mon.log.read_text()
@@ -385,12 +378,12 @@ def test_a_monitor_checks_a_change_the_controllers_gate_did_not_check_under_its_
     try:
         procs = _start_pair(ros, path, tmp_path, monitor_node="")
         certified = lambda: "the running pair is certified under this model" in mon.log.read_text()  # noqa: E731
-        assert _spin_until(ros, certified, 120.0), mon.log.read_text()[-2000:]
+        assert spin_until(ros, certified, 120.0), mon.log.read_text()[-2000:]
         assert not any("G19" in m.reason for m in stops), [m.reason for m in stops]
         ok, why = set_remote_parameters(ros, "controller_node", {"omega": [26.0]}, timeout=60.0)
         assert ok, why                                        # its gate did not consult the monitor
         caught = lambda: any(m.active and "[guarantee G19" in m.reason for m in stops)  # noqa: E731
-        assert _spin_until(ros, caught, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
+        assert spin_until(ros, caught, 120.0), f"{stops[-1]}: {mon.log.read_text()[-2000:]}"
         assert "controller_node changed its gate's inputs" in mon.log.read_text()
     finally:
         processes.stop([mon, *procs])

@@ -60,7 +60,7 @@ def test_relay_node_drops_and_delays_on_demand_and_keeps_the_order(ros, tmp_path
     pub = ros.create_publisher(JointState, "/relay_test/in", PUB_QOS)
     try:
         assert wait_until(lambda: pub.get_subscription_count() > 0 and
-                          ros.count_publishers("/relay_test/out") > 0, 30.0)
+                          rec.matched("/relay_test/out"), 30.0)
         got = rec.msgs["/relay_test/out"]
 
         def send(first, n):
