@@ -205,7 +205,8 @@ def main(argv=None):
     print(f"math total: sweep {sweep_total:.1f} s + LPs {lp_total:.2f} s", flush=True)
 
     # 3. reachset identify, a fresh process
-    tmp = Path(tempfile.mkdtemp(prefix="reachset-bench-"))
+    tmp_dir = tempfile.TemporaryDirectory(prefix="reachset-bench-")   # removed at the end, or on an error
+    tmp = Path(tmp_dir.name)
     model = tmp / "model.yaml"
     t_help, _ = run_cli("--help")
     t_id, out = run_cli("identify", bag, "--out", model, "--json")
@@ -250,9 +251,7 @@ def main(argv=None):
     print("RESULT " + json.dumps(res, sort_keys=True), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2, sort_keys=True) + "\n")
-    for f in tmp.iterdir():
-        f.unlink()
-    tmp.rmdir()
+    tmp_dir.cleanup()
     return res
 
 

@@ -111,7 +111,8 @@ def main(argv=None):
     env = dict(os.environ, PYTHONPATH=os.path.abspath(args.checkout)) if args.checkout else None
     cli = [sys.executable, "-m", "reachset_ros.cli"]
     res = {"load_average_before": os.getloadavg()[0], "cores": os.cpu_count()}
-    tmp = Path(tempfile.mkdtemp(prefix="reachset-bench-"))
+    tmp_dir = tempfile.TemporaryDirectory(prefix="reachset-bench-")   # removed at the end, or on an error
+    tmp = Path(tmp_dir.name)
     ident, rep, models, reps = [], [], set(), set()
     for i in range(args.repeat):
         m = tmp / f"m{i}.yaml"
@@ -145,9 +146,7 @@ def main(argv=None):
     print(f"load average before {res['load_average_before']:.2f}, after {res['load_average_after']:.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
-    for f in tmp.iterdir():
-        f.unlink()
-    tmp.rmdir()
+    tmp_dir.cleanup()
     return res
 
 
