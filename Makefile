@@ -41,28 +41,33 @@ $(VENV)/.pkg: $(VENV)/.msgs setup.py setup.cfg reachset_ros/conformance/_tick.c
 
 venv: $(VENV)/.pkg
 
-# every test: the pure tests on TEST_JOBS processes (pytest-xdist; they share nothing but the CPU),
-# then the DDS tests on DDS_JOBS processes (default one at a time; with more, each worker's nodes run
-# in a DDS domain of its own, test/conftest.py); both phases always run. Times: README, "Tests".
-# DDS_JOBS=2 is faster (docs/performance.md, "Test time") but two suites of nodes at once on two cores
-# exposed start-up races that one at a time does not (test_stop_hold_reset_... failed 2 of 5 runs).
-# OVERLAP=1 (an experiment, not the default: docs/performance.md, "Test time"): the pure tests on one
-# process beside the DDS tests instead of before them (the DDS phase leaves about a core idle); the
-# pure tests' output is printed after the DDS tests'.
+# every test: the tests marked dds (real DDS participants and node processes) one at a time in front,
+# and beside them the pure tests on TEST_JOBS pytest-xdist processes at the lowest CPU priority
+# (nice PURE_NICE): the DDS phase leaves about a core idle, and the pure tests take only what it
+# leaves, so the DDS tests see the machine as they did when they ran alone (docs/performance.md,
+# "Test time"). Both phases always run; the pure tests' output is printed after the DDS tests'.
+# OVERLAP=0: the pure tests first, then the DDS tests (the sequence before, about 2 min longer).
+# DDS_JOBS=2 runs the DDS tests on two workers, each in a DDS domain of its own (test/conftest.py):
+# faster, not the default: two suites of nodes at once on two cores exposed start-up races that
+# one at a time does not (test_stop_hold_reset_... failed 2 of 5 runs). Times: README, "Tests".
 TEST_JOBS ?= 2
 DDS_JOBS ?= 1
-OVERLAP ?= 0
+OVERLAP ?= 1
+PURE_NICE ?= 19
+DDS_RUN = $(PY) -m pytest $(PYTEST_ARGS) -m dds $(if $(filter-out 1,$(DDS_JOBS)),-n $(DDS_JOBS) --dist worksteal)
+PURE_RUN = $(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(TEST_JOBS) --dist worksteal
 test: venv
 ifeq ($(OVERLAP),1)
 	@rc=0; pure_log=$$(mktemp); \
-	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" > $$pure_log 2>&1 & pure=$$!; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m dds || rc=$$?; \
-	wait $$pure || rc=$$?; cat $$pure_log; rm -f $$pure_log; \
+	nice -n $(PURE_NICE) $(PURE_RUN) > $$pure_log 2>&1 & pure=$$!; \
+	$(DDS_RUN) || rc=$$?; \
+	wait $$pure || rc=$$?; \
+	echo "---- the pure tests (beside the DDS tests, nice $(PURE_NICE)) ----"; cat $$pure_log; rm -f $$pure_log; \
 	exit $$rc
 else
 	@rc=0; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m "not dds" -n $(TEST_JOBS) --dist worksteal || rc=$$?; \
-	$(PY) -m pytest $(PYTEST_ARGS) -m dds $(if $(filter-out 1,$(DDS_JOBS)),-n $(DDS_JOBS) --dist worksteal) || rc=$$?; \
+	$(PURE_RUN) || rc=$$?; \
+	$(DDS_RUN) || rc=$$?; \
 	exit $$rc
 endif
 
