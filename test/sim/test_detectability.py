@@ -107,3 +107,46 @@ def test_the_sets_own_limit_scales_with_the_inflation(model):
     assert dt.sets_limit(model, "arm_2_joint", fault="torque") is None
     # a longer window can only lower it
     assert dt.sets_limit(model, "arm_2_joint", within_s=0.2) <= a
+
+
+
+def _first_violation(model, joint, fault, magnitude, span):
+    """Noise-free data at rest (input 0), then the fault from sample 0 on: a step of the position
+    reading (``bias``) or a constant acceleration through the plant's acceleration generator
+    (``acceleration``, the simulator's fault as the model sees it). Returns the sample index of
+    the first tick the monitor core finds outside the sets, or None up to ``span``. At rest and
+    noise-free every deviation before the fault is 0 and after it exactly the fault's effect:
+    the event :func:`dt.sets_limit` bounds."""
+    from reachset_ros.conformance.monitor_core import MonitorCore
+    core = MonitorCore(model, [joint], stuck_ticks=0)
+    A, C, g = model.plant.A, model.plant.C, model.plant.Gw[:, -1]
+    dt_ns = int(round(model.plant.dt * 1e9))
+    before = model.horizon + model.estimator.history + 20
+    x = np.zeros(A.shape[0])
+    for i in range(-before, span + 1):
+        y = float((C @ x)[0]) + (magnitude if fault == "bias" and i >= 0 else 0.0)
+        st = (i + before + 1) * dt_ns
+        for ev in core.add_y(st, [joint], [y]) + core.add_u(st, [joint], [0.0]):
+            assert not hasattr(ev, "kind"), ev                      # no data fault, only the sets
+            if "violation" in ev.result["status"]:
+                return i
+        x = A @ x + (magnitude * g if fault == "acceleration" and i >= 0 else 0.0)
+    return None
+
+
+@pytest.mark.parametrize("fault,joint", [("bias", "arm_2_joint"), ("bias", "arm_5_joint"),
+                                         ("acceleration", "arm_3_joint")])
+def test_the_sets_own_limit_is_where_the_monitor_stops_the_noise_free_fault(model, fault, joint):
+    """The sets' own limit counts every test case the fault reaches within the window, those
+    that start on it too (their initial-state estimate mistakes it for motion: for fd a bias
+    shows as a velocity of b/dt). Before, only the one started just before the fault counted:
+    a bias' limit was min_k d_k, above the step the monitor stops, and an acceleration's about
+    8 % high. A fault 2 % above the limit is stopped within 100 ms of its first changed
+    measurement (the acceleration's third sample: one sample of input, one of output delay),
+    2 % below is not."""
+    first = 0 if fault == "bias" else 2
+    span = first + int(round(dt.WITHIN_S / model.plant.dt))
+    lim = dt.sets_limit(model, joint, fault=fault)
+    hit = _first_violation(model, joint, fault, 1.02 * lim, span)
+    assert hit is not None and first <= hit <= span
+    assert _first_violation(model, joint, fault, 0.98 * lim, span) is None
