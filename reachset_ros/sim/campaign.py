@@ -14,8 +14,9 @@ What each event is expected to do (``Event.expect``):
   this kind with no new active stop within :data:`DETECT_WITHIN_S` of simulated time
   (``DETECT_WITHIN_WALL_S`` of wall time for a killed process, whose clock may stop). A
   frozen sensor changes nothing while its joint rests: its window (and its latency) starts
-  at the first reference motion of the joint after the fault (:data:`FROZEN_MOTION`); a
-  joint that does not move within :data:`FROZEN_WAIT_S` makes the event ``unobservable``
+  at the first reference motion of the joint after the fault that lasts the stuck-sensor
+  rule's :data:`FROZEN_RUN` ticks (:data:`FROZEN_MOTION`, :func:`frozen_observable_ns`); a
+  joint that does not move so within :data:`FROZEN_WAIT_S` makes the event ``unobservable``
   (reported, neither a stop nor a miss).
 * ``none``: a perturbation the system must ride through: a process frozen (SIGSTOP, then
   SIGCONT) for less than :data:`FREEZE_TOLERATED_S`; the simulator waits for its command
@@ -59,6 +60,14 @@ DETECT_WITHIN_WALL_S = 5.0
 #: a frozen sensor is observable only once its joint moves: the detection window starts at the
 #: first reference with |qd_d| above this (rad/s) after the fault ...
 FROZEN_MOTION = 0.05
+#: ... that begins a run of this many consecutive ticks above it: the monitor's stuck-sensor rule
+#: (:class:`~reachset_ros.conformance.watches.StuckSensorWatch`, the node's ``stuck_ticks`` 5)
+#: needs the reading repeated on 5 + 1 consecutive ticks while the reference moves. The tail of
+#: a move that ends fewer ticks after the fault gives no such evidence, and the joint then rests
+#: with the reading within about 1 mrad of the truth. Since 2026-11-28: the long
+#: campaign's event 44 (session 26) was counted late from such a tail, 2.8 s before the rule's
+#: first chance (docs/reliability.md).
+FROZEN_RUN = 6
 #: ... awaited this long (simulated s); a joint whose reference does not move is reported
 #: as ``unobservable``, neither stopped nor missed
 FROZEN_WAIT_S = 10.0
@@ -280,22 +289,32 @@ def schedule(seed: int, n_events: int, quiet_s=(2.0, 6.0), burner_share=0.5, kin
     return events
 
 
-def frozen_observable_ns(refs, fault_ns):
-    """The stamp from which a frozen sensor is observable: its joint's first reference after
-    ``fault_ns`` moving faster than :data:`FROZEN_MOTION` (None: no such reference).
+def frozen_observable_ns(refs, fault_ns, run=FROZEN_RUN):
+    """The stamp from which a frozen sensor is observable: the first reference of its joint
+    after ``fault_ns`` moving faster than :data:`FROZEN_MOTION` in a run of ``run``
+    consecutive ticks (None: no such run).
 
     Before it the frozen reading is the truth (the joint rests) or stays within the noise (it
-    creeps), so no sound monitor can tell it from a healthy reading; from it on the monitor's
-    stuck-sensor rule (``stuck_speed``, ``stuck_ticks``) and the sets can. This is the detection
-    limit of the class (``notes/detection-limit.md``: "say for each class what bounds it"); the
-    campaign (its detection window) and the demo (its latency promise) count from here.
+    creeps, or the tail of a move ends within fewer ticks), so no sound monitor can tell it from
+    a healthy reading; from it on the monitor's stuck-sensor rule (``stuck_speed``,
+    ``stuck_ticks``) and the sets can. This is the detection limit of the class
+    (``notes/detection-limit.md``: "say for each class what bounds it"); the campaign (its
+    detection window) and the demo (its latency promise) count from here. The run may begin on
+    the tick before the fault: the rule's repeated readings start with the reading the freeze
+    holds, that tick's; the window then starts at the run's first reference after the fault.
+    Ticks are consecutive when their stamps are at most 1.5 reference periods apart (the
+    median step of the joint's references).
 
     Parameters
     ----------
     refs : list of Reference
-        The joint's recorded references (:func:`reachset_ros.bags.read_references`), any order.
+        The joint's recorded references (:func:`reachset_ros.bags.read_references`; anything
+        with ``stamps`` (ns) and ``qd`` arrays), any order.
     fault_ns : int
         The fault's stamp (``/sim/fault_onset``).
+    run : int
+        Consecutive ticks the motion must last (:data:`FROZEN_RUN`; 1: the first fast
+        reference, the rule before 2026-11-28).
 
     Returns
     -------
@@ -303,9 +322,25 @@ def frozen_observable_ns(refs, fault_ns):
     """
     hits = []
     for r in refs:
-        fast = r.stamps[(r.stamps > fault_ns) & (np.abs(r.qd) > FROZEN_MOTION)]
-        if fast.size:
-            hits.append(int(fast[0]))
+        st = np.asarray(r.stamps, dtype=np.int64)
+        qd = np.asarray(r.qd, dtype=np.float64)
+        if st.size == 0:
+            continue
+        order = np.argsort(st, kind="stable")
+        st, qd = st[order], qd[order]
+        period = int(np.median(np.diff(st))) if st.size > 1 else 0
+        keep = st >= fault_ns - period if period > 0 else st > fault_ns
+        st, fast = st[keep], np.abs(qd[keep]) > FROZEN_MOTION
+        n = 0
+        for i in range(st.size):
+            if not fast[i]:
+                n = 0
+                continue
+            n = n + 1 if (n and 2 * (st[i] - st[i - 1]) <= 3 * period) else 1
+            if n >= run and st[i] > fault_ns:
+                after = st[i - n + 1:i + 1]
+                hits.append(int(after[after > fault_ns][0]))
+                break
     return min(hits) if hits else None
 
 

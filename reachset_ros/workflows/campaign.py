@@ -23,12 +23,15 @@ re-score).
 """
 from __future__ import annotations
 
+import collections
+import itertools
 import os
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -77,6 +80,10 @@ class CampaignListener:
     """Distinct active stops with the simulation time and wall time of their arrival, and the
     controller's brake commands that carry a stop's arrival."""
 
+    #: references kept per joint (the newest FROZEN_RUN and those since :meth:`observable_ns` last looked)
+    REFS_KEPT = 5000
+    REF_PERIOD_NS = int(round(SIM_DT * 1e9))
+
     def __init__(self, driver):
         self.driver = driver
         self.stops = []          # (stop stamp, arrival sim ns, reason, kind, arrival wall)
@@ -87,7 +94,11 @@ class CampaignListener:
         driver.create_subscription(BrakeCommand, "brake_command", self.on_brake, TICK_QOS)
         driver.create_subscription(JointState, "joint_states", self.on_js, TICK_QOS)
         driver.create_subscription(JointReference, "reference", self.on_ref, TICK_QOS)
-        self.moving = {}         # joint -> stamp of the first reference with |qd_d| > FROZEN_MOTION
+        # joint -> its newest references (stamp, qd_d): when a frozen sensor becomes observable
+        # (:meth:`observable_ns`)
+        self.refs = collections.defaultdict(lambda: collections.deque(maxlen=self.REFS_KEPT))
+        self.received = collections.Counter()     # references received per joint
+        self._checked = {}                          # (joint, fault) -> references looked at
         driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
         self.braked = 0          # /brake_command messages with an engaged brake
         self.brake_reason = ""   # the newest one's reason
@@ -129,8 +140,30 @@ class CampaignListener:
     def on_ref(self, m):
         t = stamp_ns(m.header.stamp)
         for n, v in zip(m.name, m.velocity):
-            if abs(v) > cp.FROZEN_MOTION:
-                self.moving.setdefault(n, t)      # the first since the entry was cleared
+            self.refs[n].append((t, v))
+            self.received[n] += 1
+
+    def observable_ns(self, joint, fault_ns):
+        """When a frozen sensor of ``joint`` at ``fault_ns`` became observable, from the
+        references received (:func:`~reachset_ros.sim.campaign.frozen_observable_ns`, the rule
+        the score applies to the bag), or None yet. Each call looks at the references received
+        since the previous call for the same fault and the run before them (the first run of
+        ``FROZEN_RUN`` fast ticks ends among them), so a wait that calls it after every
+        message costs a few references per call."""
+        n = self.received[joint]
+        key = (joint, int(fault_ns))
+        new = n - self._checked.get(key, 0)
+        if new <= 0:
+            return None
+        self._checked[key] = n
+        q = self.refs[joint]
+        take = min(len(q), new + cp.FROZEN_RUN)
+        got = [r for r in itertools.islice(q, len(q) - take, len(q)) if r[0] >= fault_ns - 2 * self.REF_PERIOD_NS]
+        if len(got) < 2:
+            return None
+        return cp.frozen_observable_ns([SimpleNamespace(stamps=np.array([r[0] for r in got], dtype=np.int64),
+                                                        qd=np.array([r[1] for r in got], dtype=np.float64))],
+                                       fault_ns)
 
 
 class Burners:
@@ -449,12 +482,18 @@ class _Campaign:
         o.fault_ns = stamp_ns(cmd.onsets[-1].stamp)
         if ev.fault != "frozen":
             return None
-        # observable only once the joint moves: wait (up to FROZEN_WAIT_S) for its
-        # reference to move, the detection window starts there
-        lis.moving.pop(ev.joint, None)
-        cmd.sim_wait(cp.FROZEN_WAIT_S, until=lambda: ev.joint in lis.moving or len(lis.stops) > n)
-        o.observable_ns = max(o.fault_ns, lis.moving.get(ev.joint, 0)) if (
-            ev.joint in lis.moving or len(lis.stops) > n) else 0
+        # observable only once the joint moves (for the stuck-sensor rule's FROZEN_RUN ticks):
+        # wait (up to FROZEN_WAIT_S) for its reference to move so, the detection window starts there
+        seen = []
+
+        def observable():
+            if not seen:
+                t = lis.observable_ns(ev.joint, o.fault_ns)
+                if t is not None:
+                    seen.append(t)
+            return bool(seen) or len(lis.stops) > n
+        cmd.sim_wait(cp.FROZEN_WAIT_S, until=observable)
+        o.observable_ns = max(o.fault_ns, seen[0] if seen else 0) if (seen or len(lis.stops) > n) else 0
         return time.monotonic()   # the wall-time guard, too, starts with the window
 
     def inject_stamp_jump(self, ev, o):

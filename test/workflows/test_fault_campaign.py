@@ -310,3 +310,73 @@ def test_a_stop_the_controller_acted_on_in_time_is_not_late_however_late_the_lis
     slow = cp.Outcome(ev, fault_ns=T0, stops=[(T0 + 16 * MS, T0 + 30 * MS, "violation: a")],
                       controller_ns=T0 + 1500 * MS)            # the listener's arrival is the earlier
     assert slow.acted_latency_ns() == 30 * MS and cp.score([slow])["missed_stops"] == 0
+
+
+def test_a_frozen_sensor_is_observable_from_motion_the_stuck_sensor_rule_can_use():
+    """A freeze that lands on the tail of a move (its joint's reference above FROZEN_MOTION for
+    fewer than the stuck-sensor rule's 6 ticks after the fault, then at rest) gives no evidence
+    any rule of the monitor can use until the next move: the window opens there, at the first
+    run of FROZEN_RUN fast ticks; the run may begin on the tick before the fault (the reading the
+    freeze holds). Before: the window opened at the tail's first tick, and a stop by the rule
+    at the next move 2.8 s later counted as missed (the long campaign's event 44, session 26).
+    The stuck-sensor rule itself cannot fire on the tail and fires at the run's sixth tick."""
+    from types import SimpleNamespace
+    from reachset_ros.conformance.watches import StuckSensorWatch
+    dt = 4_000_000
+    t0, fault = 10**18, 10**18 + 100 * dt                 # the freeze holds the reading of tick 99
+    move = 800                                            # the next move starts at tick 800 (2.8 s)
+    k = np.arange(1200)
+    qd = np.where((k >= 60) & (k < 103), 0.3, 0.0)        # a move whose tail runs to tick 102
+    qd = np.where(k >= move, 0.2, qd)
+    refs = [SimpleNamespace(stamps=t0 + k * dt, qd=qd)]
+    assert cp.frozen_observable_ns(refs, fault, run=1) == fault + dt           # the old rule: the tail
+    assert cp.frozen_observable_ns(refs, fault) == t0 + move * dt
+    # five fast ticks after the fault and the one before it: the rule's six, the window opens
+    qd5 = np.where((k >= 60) & (k < 105), 0.3, 0.0)
+    assert cp.frozen_observable_ns([SimpleNamespace(stamps=t0 + k * dt, qd=qd5)], fault) == fault + dt
+    # a reference lost in the run breaks it (the rule needs each tick's reference)
+    gap = k != move + 2
+    assert cp.frozen_observable_ns([SimpleNamespace(stamps=(t0 + k * dt)[gap], qd=qd[gap])], fault) == \
+        t0 + (move + 3) * dt
+    # the stuck-sensor rule on the same references and a reading frozen from the fault on
+    w = StuckSensorWatch(["j"], dt)
+    fired = None
+    for i in range(1200):
+        st = t0 + i * dt
+        w.add_reference(st, [qd[i]])
+        ev = w.update(st, [0.5 if st >= fault - dt else 1e-3 * i])
+        if ev is not None:
+            fired = st
+            break
+    assert fired == t0 + (move + 5) * dt                   # the run's sixth tick
+
+
+@pytest.mark.dds
+def test_the_runner_opens_a_frozen_sensors_window_where_the_score_does(ros):
+    """The campaign's listener decides online when a frozen sensor's window opens (it waits for
+    it, up to FROZEN_WAIT_S), from the references it receives, one message at a time; it asks
+    the score's own rule (frozen_observable_ns) on the references since it last looked, and
+    answers as the rule does on the whole recording."""
+    from reachset_msgs.msg import JointReference
+    from reachset_ros.nodes.common import to_stamp
+    from reachset_ros.workflows.campaign import CampaignListener
+    lis = CampaignListener(ros)
+    dt, t0 = 4_000_000, 10**18
+    fault = t0 + 100 * dt
+    k = np.arange(1000)
+    qd = np.where((k >= 60) & (k < 103), 0.3, 0.0)        # a tail of 3 ticks after the fault ...
+    qd = np.where((k >= 700) & (k < 720), -0.2, qd)        # ... and the next move
+    want = cp.frozen_observable_ns([type("R", (), {"stamps": t0 + k * dt, "qd": qd})], fault)
+    assert want == t0 + 700 * dt
+    got = None
+    for i in range(1000):
+        m = JointReference(name=["arm_1_joint", "arm_2_joint"], position=[0.0, 0.0], velocity=[0.0, float(qd[i])],
+                           acceleration=[0.0, 0.0])
+        to_stamp(m.header.stamp, int(t0 + i * dt))
+        lis.on_ref(m)
+        if i % 3 == 0 or i > 690:                         # looked at after one or several messages
+            seen = lis.observable_ns("arm_2_joint", fault)
+            if seen is not None and got is None:
+                got = (i, seen)
+    assert got == (705, want)                              # known at the run's sixth tick, not at the tail
+    assert lis.observable_ns("arm_1_joint", fault) is None
