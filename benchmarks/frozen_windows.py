@@ -9,8 +9,11 @@ Usage::
 ``WORK`` (a ``benchmarks/fault_campaign.py`` work directory): for every ``sim frozen`` event,
 from its block's bag, in ms after the fault's stamp:
 
-* ``window``: the first reference of the joint faster than ``FROZEN_MOTION`` (where the campaign
-  starts the freeze's detection window, :func:`reachset_ros.sim.campaign.frozen_observable_ns`);
+* ``fast``: the first reference of the joint faster than ``FROZEN_MOTION`` (where the campaign
+  started the freeze's detection window before 2026-11-28);
+* ``window``: the first such reference that begins a run of ``FROZEN_RUN`` consecutive ones (where
+  the campaign starts the window now, :func:`reachset_ros.sim.campaign.frozen_observable_ns`);
+  ``fast`` earlier than ``window`` with a rest between: the fault landed on a move's tail;
 * ``rule``: the first tick at which the monitor's stuck-sensor rule could fire: the joint's
   reference at ``>= stuck_speed`` on ``stuck_ticks + 1`` consecutive 4-ms ticks, counted from the
   tick before the fault (the reading the freeze holds) up to the stop (after a stop the reference rests, so the rule's condition is
@@ -76,9 +79,10 @@ def campaign(work: Path):
         stop_ns = int(stops[0][0]) if stops else None
         refs = read_references([o["bag"]], joints=[joint]).get(joint, [])
         window = cp.frozen_observable_ns(refs, f)
+        fast = cp.frozen_observable_ns(refs, f, run=1)
         rule = first_rule_tick(refs, f, stop_ns if stop_ns is not None else 2 ** 63)
         ms = (lambda x: None if x is None else (x - f) / 1e6)
-        rows.append({"event": o["event"], "window_ms": ms(window), "rule_ms": ms(rule), "stop_ms": ms(stop_ns),
+        rows.append({"event": o["event"], "fast_ms": ms(fast), "window_ms": ms(window), "rule_ms": ms(rule), "stop_ms": ms(stop_ns),
                      "stop_kind": stops[0][2].split(":")[0] if stops else None})
     return rows
 
@@ -121,7 +125,7 @@ def main(argv=None):
         return rows
     fmt = (lambda x: "-" if x is None else f"{x:.0f}")
     for r in rows:
-        print(f"{r['event']:28s} window {fmt(r['window_ms']):>6s}  rule {fmt(r['rule_ms']):>6s}  "
+        print(f"{r['event']:28s} fast {fmt(r['fast_ms']):>6s}  window {fmt(r['window_ms']):>6s}  rule {fmt(r['rule_ms']):>6s}  "
               f"stop {fmt(r['stop_ms']):>6s} ({r['stop_kind']})")
     by_rule = [r for r in rows if r["stop_kind"] == "invalid_sample"]
     late = [r for r in by_rule if r["rule_ms"] is not None and r["stop_ms"] > r["rule_ms"] + DT_NS / 1e6]
