@@ -604,7 +604,9 @@ def frozen_before_motion(outcomes):
     (``Outcome.stopped_before_motion``), from the recorded ``/reference`` of each event's bag:
     their detection window had not begun (the window of a frozen sensor starts at that motion),
     so the score does not count them late. The runner stops waiting for the motion once a stop
-    arrives, so the bag, not the runner's clock, decides (the same for a re-score)."""
+    arrives, so the bag, not the runner's clock, decides (the same for a re-score); the window's
+    start (``Outcome.observable_ns``) is set from the bag as well, so that a re-score of a run
+    scored with an earlier rule (before 2026-11-28: the first fast reference) applies today's."""
     for bag, group in _by_bag(o for o in outcomes
                               if o.event.kind == "sim" and o.event.fault == "frozen" and o.stops and o.bag).items():
         refs = read_references([bag], joints=sorted({o.event.joint for o in group}))
@@ -614,6 +616,8 @@ def frozen_before_motion(outcomes):
             recorded = any(np.any((r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0])) for r in mine)
             seen = cp.frozen_observable_ns(mine, o.fault_ns)
             o.stopped_before_motion = recorded and (seen is None or seen > o.stops[0][0])
+            if seen is not None:        # the window's start, from the bag (a re-score applies today's rule)
+                o.observable_ns = max(o.fault_ns, seen)
 
 
 def bag_stops(outcomes):

@@ -380,3 +380,30 @@ def test_the_runner_opens_a_frozen_sensors_window_where_the_score_does(ros):
                 got = (i, seen)
     assert got == (705, want)                              # known at the run's sixth tick, not at the tail
     assert lis.observable_ns("arm_1_joint", fault) is None
+
+
+def test_a_rescore_opens_a_frozen_sensors_window_after_a_moves_tail(tmp_path):
+    """A run scored with the old window (the first fast reference: a move's tail of 3 ticks after
+    the fault), its stop by the stuck-sensor rule 20 ms into the next move 2.8 s later: the bag
+    sets the window's start to that move (``frozen_before_motion``), and the stop is in time.
+    Before: the window stayed at the tail and the stop counted as missed (event 44)."""
+    from reachset_ros import bags
+    from reachset_ros.workflows.campaign import frozen_before_motion
+    T0, DT = 10**18, 4_000_000
+    JR = bags.typestore().types[bags.REFERENCE_TYPE]
+    path = tmp_path / "tail"
+    move = 800
+    with bags.BagWriter(path) as w:
+        for k in range(1000):
+            t = T0 + k * DT
+            v = 0.3 if 60 <= k < 103 or k >= move else 0.0
+            w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=["a"], position=np.zeros(1),
+                                             velocity=np.array([v]), acceleration=np.zeros(1)), t, bags.REFERENCE_TYPE)
+    ev = cp.Event(44, "sim", 1.0, "stop", fault="frozen", joint="a")
+    fault, stop = T0 + 100 * DT, T0 + (move + 5) * DT
+    o = cp.Outcome(ev, fault_ns=fault, observable_ns=fault + DT, stops=[(stop, stop + DT, "invalid_sample")],
+                   bag=str(path))
+    frozen_before_motion([o])
+    assert o.observable_ns == T0 + move * DT and not o.stopped_before_motion
+    s = cp.score([o])
+    assert (s["stops"], s["missed_stops"]) == (1, 0)
