@@ -68,10 +68,13 @@ def real_bags():
 
 
 def identify(cost, train, a):
-    """``reachset identify TRAIN... --calibrate K --cost COST --out M``; returns M's path."""
-    out = CACHE / f"model_{cost}_k{a.calibrate}{'_real' if a.real else ''}.yaml"
+    """``reachset identify TRAIN... --calibrate K --cost COST --out M``; returns M's path.
+    ``COST`` ``detection:S``: ``--cost detection --detection-window S`` (``detection`` alone:
+    identify's default window)."""
+    name, _, window = cost.partition(":")
+    out = CACHE / f"model_{name}{'_w' + window if window else ''}_k{a.calibrate}{'_real' if a.real else ''}.yaml"
     cmd = [str(REPO / ".venv" / "bin" / "reachset"), "identify", *map(str, train), "--calibrate", str(a.calibrate),
-           "--cost", cost, "--out", str(out)]
+           "--cost", name, "--out", str(out)] + (["--detection-window", window] if window else [])
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}: {p.stderr.strip()[-400:]}")
@@ -104,7 +107,9 @@ def judge(model_path, held, accel):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--costs", nargs="+", default=["linear", "detection"])
+    ap.add_argument("--costs", nargs="+", default=["linear", "detection"],
+                    help="identify's --cost per model; detection:S with --detection-window S (e.g. detection:0, the "
+                         "whole horizon)")
     ap.add_argument("--train", type=int, default=6)
     ap.add_argument("--held-out", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=30.0)

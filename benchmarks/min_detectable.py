@@ -58,8 +58,11 @@ def train_model(su, *, runs, seconds, folds, log, cost=None):
     numbers not divisible by 4), cached by its parameters; returns the model file."""
     numbers = [i for i in range(1, 4 * runs) if i % 4][:runs]
     cost = cost or defaults.get("identify.cost")
+    window = defaults.get("identify.detection_window") if cost == "detection" else None
+    # (the key of a model identified before --detection-window, with the whole horizon, is unchanged)
     key = hashlib.sha256(json.dumps([numbers, seconds, folds, INITIAL_GAINS, REFERENCE_LEAD, 1]
-                                    + ([cost] if cost != "linear" else []),
+                                    + ([cost] if cost != "linear" else [])
+                                    + ([window] if window else []),
                                     sort_keys=True).encode()).hexdigest()[:12]
     d = CACHE / f"min_detectable_{key}"
     model = d / "model.yaml"

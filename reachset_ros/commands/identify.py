@@ -5,8 +5,9 @@ Options beyond the paper's separate approach:
 - ``--cost quadratic``: minimise ||G'_W diag a_W||_F^2 + ||G'_V diag a_V||_F^2 under the same
   Theorem-1 constraints (OSQP through cvxpy, then made sound in floating point).
 - ``--cost detection``: minimise the radii of the reachable output sets R_a[k] summed over
-  k = 0..k* (the sets the monitor checks) under the same constraints (HiGHS), rather than
-  ||W|| + ||V||, which may put all of W on the generator whose output set grows fastest
+  the steps k within ``--detection-window`` (default 0.1 s: the 100 ms in which a fault must
+  stop; 0: k = 0..k*; the sets the monitor checks) under the same constraints (HiGHS), rather
+  than ||W|| + ||V||, which may put all of W on the generator whose output set grows fastest
   (issue 35.2; measured in docs/performance.md).
 - ``--method corollary1``: the conservative state-based variant (paper Corollary 1); it
   needs an estimator consistent with the model and fails with a message naming the test
@@ -74,7 +75,11 @@ def add_arguments(p):
     p.add_argument("--cost", default=defaults.get("identify.cost"), choices=["linear", "quadratic", "detection"],
                    help="linear: ||W||+||V|| (paper, HiGHS); quadratic: squared Frobenius norm of the "
                         "scaled generators (OSQP); detection: the radii of the reachable output sets summed "
-                        "over the horizon (HiGHS; the monitor's detection power, docs/performance.md); default %(default)s")
+                        "over --detection-window (HiGHS; the monitor's detection power, docs/performance.md); default "
+                        "%(default)s")
+    p.add_argument("--detection-window", type=float, default=defaults.get("identify.detection_window"), metavar="S",
+                   help="with --cost detection: sum the radii over the steps within S seconds of a test case's start "
+                        "(default %(default)g: the 100 ms in which a fault must stop; 0: the whole horizon)")
     p.add_argument("--method", default="theorem1", choices=["theorem1", "corollary1"],
                    help="Theorem 1 (output-based, default) or Corollary 1 (state-based, conservative)")
     p.add_argument("--validate", nargs="+", metavar="VBAG",
@@ -118,7 +123,8 @@ def options_of(args):
         bags=tuple(args.bags), joints=parse_joints(args.joints), dt=args.dt, topics=topics_of(args),
         horizon=args.horizon, allow_weak_horizon=args.allow_weak_horizon,
         estimator=args.estimator, initial_state_set=bool(args.initial_state_set), centers=args.centers,
-        alpha_lower=args.alpha_lower, cost=args.cost, method=args.method, inflation_rule=args.inflation_rule,
+        alpha_lower=args.alpha_lower, cost=args.cost, detection_window=args.detection_window, method=args.method,
+        inflation_rule=args.inflation_rule,
         validate=None if args.validate is None else tuple(args.validate),
         inflation_grid=None if args.inflation_grid is None else tuple(args.inflation_grid),
         inflation=args.inflation, calibrate=args.calibrate, calibrate_margin=args.calibrate_margin,

@@ -245,3 +245,53 @@ def test_cli_cost_method_validate(tmp_path, held_out):
     assert rc.returncode == 2 and "q_prev" in rc.stderr and rc.stderr.count("\n") == 1
     rg = run_cli("identify", train, "--inflation-grid", "0.1")
     assert rg.returncode == 2 and "--validate" in rg.stderr
+
+
+# ------------------------------------------------------------------ detection cost over the fault window
+def test_the_detection_cost_over_the_fault_window_is_sound_and_tighter_where_it_counts(lwa):
+    """``--detection-window`` (issue 35: a fault must stop within 100 ms): the detection cost
+    summed over the first 25 steps instead of the whole horizon. Same Theorem-1 rows, so just as
+    sound on its data; the optimum of each cost is no worse under that cost, and the windowed
+    sets are smaller over the window (the steps that decide a stop within it)."""
+    from reachset_ros.conformance.identify import detection_cost
+    p, y, u, _, _, _ = lwa
+    est, segs, K = Estimator("fd"), ((0, 3000),), 125           # the monitor's horizon: 25 steps are a fifth of it
+    thm = cf.Theorem1.build(p, K)
+    dev = cf.deviation_extremes(p, est, y, u, segs, K, thm)
+    full = cf.identify_sets(p, thm, dev, cost_vector=detection_cost(p, thm))
+    c25 = detection_cost(p, thm, window=25)
+    win = cf.identify_sets(p, thm, dev, cost_vector=c25)
+    for sets in (full, win):
+        assert cf.check(p, thm, est, sets.xi, y, u, segs, K).violations == 0
+    a_full, a_win = (np.concatenate([s.alpha_w, s.alpha_v]) for s in (full, win))
+    assert c25 @ a_win <= c25 @ a_full * (1 + 1e-6)
+    assert detection_cost(p, thm) @ a_full <= detection_cost(p, thm) @ a_win * (1 + 1e-6)
+    assert not np.allclose(a_full, a_win, rtol=0.01)
+    radius = lambda sets, k: float(thm.Dp[k][0] @ sets.xi)          # R_a[k]'s half-width
+    assert sum(radius(win, k) for k in range(26)) < sum(radius(full, k) for k in range(26))
+
+
+def test_cli_detection_window_is_recorded_and_checked(tmp_path, lwa):
+    """``reachset identify --detection-window S``: the model records the window its sets were
+    identified with (the calibration's rule, so a re-calibration identifies its folds alike); the
+    default is 0.1 s (``identify.detection_window``); out of range: exit 2, one line, no file."""
+    from reachset_ros import defaults
+    from reachset_ros.workflows import identify  # noqa: F401  (registers identify's defaults)
+    p, y, u, _, _, _ = lwa
+    names = ["arm_1_joint"]
+    bag = tmp_path / "b"
+    write_bag(bag, y[:1500], u[:1500], names, T0 + DT_NS * np.arange(1500))
+    write_bag(tmp_path / "b2", y[1500:], u[1500:], names, T0 + DT_NS * np.arange(1500, 3000))
+    assert defaults.get("identify.detection_window") == 0.1
+    out = {}
+    for w in ("0.1", "0"):
+        m = tmp_path / f"m{w}.yaml"
+        r = run_cli("identify", bag, tmp_path / "b2", "--calibrate", "2", "--detection-window", w,
+                    "--out", m, "--json")
+        assert r.returncode == 0, r.stderr
+        out[w] = yaml.safe_load(m.read_text())
+        assert out[w]["calibration"]["rule"]["detection_window_s"] == float(w)
+    assert out["0.1"]["joints"]["arm_1_joint"]["alpha_w"] != out["0"]["joints"]["arm_1_joint"]["alpha_w"]
+    bad = run_cli("identify", bag, "--detection-window", "-0.5", "--out", tmp_path / "bad.yaml")
+    assert bad.returncode == 2 and "--detection-window" in bad.stderr and bad.stderr.count("\n") == 1
+    assert not (tmp_path / "bad.yaml").exists()
