@@ -616,8 +616,9 @@ def frozen_before_motion(outcomes):
             recorded = any(np.any((r.stamps > o.fault_ns) & (r.stamps <= o.stops[0][0])) for r in mine)
             seen = cp.frozen_observable_ns(mine, o.fault_ns)
             o.stopped_before_motion = recorded and (seen is None or seen > o.stops[0][0])
-            if seen is not None:        # the window's start, from the bag (a re-score applies today's rule)
-                o.observable_ns = max(o.fault_ns, seen)
+            # the window's start, from the bag (a re-score applies today's rule); a stop before it
+            # is reported with its latency from the fault
+            o.observable_ns = o.fault_ns if o.stopped_before_motion or seen is None else max(o.fault_ns, seen)
 
 
 def bag_stops(outcomes):
