@@ -98,7 +98,7 @@ class CampaignListener:
         # (:meth:`observable_ns`)
         self.refs = collections.defaultdict(lambda: collections.deque(maxlen=self.REFS_KEPT))
         self.received = collections.Counter()     # references received per joint
-        self._checked = {}                          # (joint, fault) -> references looked at
+        self._checked = {}         # (joint, fault) -> (references looked at, the window's start or None)
         driver.create_subscription(DiagnosticArray, "diagnostics", self.on_diag, 50)
         self.braked = 0          # /brake_command messages with an engaged brake
         self.brake_reason = ""   # the newest one's reason
@@ -144,26 +144,21 @@ class CampaignListener:
             self.received[n] += 1
 
     def observable_ns(self, joint, fault_ns):
-        """When a frozen sensor of ``joint`` at ``fault_ns`` became observable, from the
-        references received (:func:`~reachset_ros.sim.campaign.frozen_observable_ns`, the rule
-        the score applies to the bag), or None yet. Each call looks at the references received
-        since the previous call for the same fault and the run before them (the first run of
-        ``FROZEN_RUN`` fast ticks ends among them), so a wait that calls it after every
-        message costs a few references per call."""
-        n = self.received[joint]
+        """When a frozen sensor of ``joint`` at ``fault_ns`` became observable, or None yet: the
+        score's rule (:func:`~reachset_ros.sim.campaign.frozen_observable_ns`) on the references
+        received since the previous call and the run before them, where the first run of
+        ``FROZEN_RUN`` fast ticks ends (a few references per call, as often as the waits call)."""
         key = (joint, int(fault_ns))
-        new = n - self._checked.get(key, 0)
-        if new <= 0:
-            return None
-        self._checked[key] = n
-        q = self.refs[joint]
-        take = min(len(q), new + cp.FROZEN_RUN)
-        got = [r for r in itertools.islice(q, len(q) - take, len(q)) if r[0] >= fault_ns - 2 * self.REF_PERIOD_NS]
-        if len(got) < 2:
-            return None
-        return cp.frozen_observable_ns([SimpleNamespace(stamps=np.array([r[0] for r in got], dtype=np.int64),
-                                                        qd=np.array([r[1] for r in got], dtype=np.float64))],
-                                       fault_ns)
+        looked, found = self._checked.get(key, (0, None))
+        n = self.received[joint]
+        if found is None and n > looked:
+            q = self.refs[joint]
+            got = [r for r in itertools.islice(q, max(0, len(q) - (n - looked) - cp.FROZEN_RUN), len(q))
+                   if r[0] >= fault_ns - 2 * self.REF_PERIOD_NS]
+            found = cp.frozen_observable_ns([SimpleNamespace(stamps=np.array([r[0] for r in got], dtype=np.int64),
+                                                             qd=np.array([r[1] for r in got]))], fault_ns)
+            self._checked[key] = (n, found)
+        return found
 
 
 class Burners:
@@ -484,16 +479,10 @@ class _Campaign:
             return None
         # observable only once the joint moves (for the stuck-sensor rule's FROZEN_RUN ticks):
         # wait (up to FROZEN_WAIT_S) for its reference to move so, the detection window starts there
-        seen = []
-
-        def observable():
-            if not seen:
-                t = lis.observable_ns(ev.joint, o.fault_ns)
-                if t is not None:
-                    seen.append(t)
-            return bool(seen) or len(lis.stops) > n
-        cmd.sim_wait(cp.FROZEN_WAIT_S, until=observable)
-        o.observable_ns = max(o.fault_ns, seen[0] if seen else 0) if (seen or len(lis.stops) > n) else 0
+        cmd.sim_wait(cp.FROZEN_WAIT_S, until=lambda: lis.observable_ns(ev.joint, o.fault_ns) is not None
+                     or len(lis.stops) > n)
+        seen = lis.observable_ns(ev.joint, o.fault_ns)
+        o.observable_ns = max(o.fault_ns, seen or 0) if (seen is not None or len(lis.stops) > n) else 0
         return time.monotonic()   # the wall-time guard, too, starts with the window
 
     def inject_stamp_jump(self, ev, o):
