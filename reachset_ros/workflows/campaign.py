@@ -607,7 +607,7 @@ def frozen_before_motion(outcomes):
             o.stopped_before_motion = recorded and (seen is None or seen > o.stops[0][0])
             # the window's start, from the bag (a re-score applies today's rule); a stop before it
             # is reported with its latency from the fault
-            o.observable_ns = o.fault_ns if o.stopped_before_motion or seen is None else max(o.fault_ns, seen)
+            o.observable_ns = o.fault_ns if seen is None or seen > o.stops[0][0] else max(o.fault_ns, seen)
 
 
 def bag_stops(outcomes):

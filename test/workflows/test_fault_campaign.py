@@ -407,3 +407,9 @@ def test_a_rescore_opens_a_frozen_sensors_window_after_a_moves_tail(tmp_path):
     assert o.observable_ns == T0 + move * DT and not o.stopped_before_motion
     s = cp.score([o])
     assert (s["stops"], s["missed_stops"]) == (1, 0)
+    # stopped by the sets on the tail itself, at the fault's own stamp (no reference between the
+    # two): its latency counts from the fault, not from the later window (never negative)
+    early = cp.Outcome(ev, fault_ns=fault, observable_ns=fault + DT, stops=[(fault, fault + 2 * DT, "violation")],
+                       bag=str(path))
+    frozen_before_motion([early])
+    assert early.observable_ns == fault and early.latency_ns() == 2 * DT
