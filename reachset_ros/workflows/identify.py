@@ -256,6 +256,9 @@ def identify_series(plant, est, series, horizon, *, centers="zero", alpha_lower=
         if method != "corollary1" and cost != "quadratic":
             prefetch_solver()                 # the LP solver's import overlaps the (GIL-free) sweep
         devs = deviation_extremes_many(plant, est, series, horizon, thm)
+    # the detection cost depends on the plant, the rows and the window only: one vector for every joint
+    cvec = detection_cost(plant, thm, window=detection_steps(plant.dt, detection_window)) \
+        if cost == "detection" and method != "corollary1" else None
     for name, dev in devs.items():
         try:
             if method == "corollary1":
@@ -267,8 +270,6 @@ def identify_series(plant, est, series, horizon, *, centers="zero", alpha_lower=
                 if cost == "quadratic":
                     sets = identify_quadratic(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)
                 else:
-                    cvec = detection_cost(plant, thm, window=detection_steps(plant, detection_window)) \
-                        if cost == "detection" else None
                     sets = identify_sets(plant, thm, dev, centers=centers, alpha_lower=alpha_lower, cost_vector=cvec)
                 settled = (stable_horizon(plant, thm, dev, centers=centers, alpha_lower=alpha_lower)[0]
                            if settle else None)
@@ -278,13 +279,14 @@ def identify_series(plant, est, series, horizon, *, centers="zero", alpha_lower=
     return out, thm
 
 
-def detection_steps(plant, seconds=None):
-    """The steps the detection cost sums (:func:`~reachset_ros.conformance.identify.detection_cost`'s
-    ``window``) for ``seconds`` (None: ``identify.detection_window``); None for 0: the horizon."""
+def detection_steps(dt, seconds=None):
+    """The steps of ``dt`` seconds the detection cost sums
+    (:func:`~reachset_ros.conformance.identify.detection_cost`'s ``window``) for ``seconds``
+    (None: ``identify.detection_window``); None for 0: the horizon."""
     seconds = defaults.get("identify.detection_window") if seconds is None else float(seconds)
     if not (np.isfinite(seconds) and seconds >= 0):
         raise ReachsetError(f"--detection-window must be a finite number of seconds >= 0, got {seconds!r}")
-    return None if seconds == 0 else max(1, int(round(seconds / plant.dt)))
+    return None if seconds == 0 else max(1, int(round(seconds / dt)))
 
 
 def model_joint_sets(sets, dev, horizon):
@@ -368,7 +370,7 @@ def check_options(o: IdentifyOptions):
     require_minimum_horizon(lwa4p_joint_plant(dt=o.dt), o.horizon, o.allow_weak_horizon)
     if not np.isfinite(o.fault_accel):
         raise ReachsetError("--fault-accel must be finite")
-    detection_steps(lwa4p_joint_plant(dt=o.dt), o.detection_window)      # --detection-window in range
+    detection_steps(o.dt, o.detection_window)      # --detection-window in range
     if o.inflation_grid is not None and o.validate is None and o.calibrate is None:
         raise ReachsetError("--inflation-grid needs --validate or --calibrate")
     if o.calibrate is not None:

@@ -21,6 +21,19 @@ from reachset_ros.sim import campaign as cp
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def write_references(path, names, stamps, velocity):
+    """A bag of ``/reference`` samples stamped ``stamps`` (ns) with joint velocities ``velocity``
+    (one row per sample), positions and accelerations 0: what the score reads of a frozen
+    sensor's joint."""
+    from reachset_ros import bags
+    JR = bags.typestore().types[bags.REFERENCE_TYPE]
+    zero = np.zeros(len(names))
+    with bags.BagWriter(path) as w:
+        for t, v in zip(stamps.tolist(), np.asarray(velocity, dtype=np.float64)):
+            w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=list(names), position=zero,
+                                             velocity=v.copy(), acceleration=zero), t, bags.REFERENCE_TYPE)
+
+
 def test_schedule_is_seeded_and_covers_every_kind():
     a, b = cp.schedule(3, 64), cp.schedule(3, 64)
     assert a == b and a != cp.schedule(4, 64)
@@ -153,19 +166,12 @@ def test_a_frozen_sensor_stopped_before_its_joint_moved_is_not_late(tmp_path):
     marked from the bag's /reference (``frozen_before_motion``) and counted as a stop, not as
     a late one (the runner had used the fault's stamp: a miss); the same stop after a fast
     move is late. Its latency from the fault is still reported."""
-    from reachset_ros import bags
     from reachset_ros.workflows.campaign import frozen_before_motion
     T0, DT = 10**18, 4_000_000
-    JR = bags.typestore().types[bags.REFERENCE_TYPE]
     out = {}
     for case, speed in (("slow", 0.03), ("fast", 0.3)):
         path = tmp_path / case
-        with bags.BagWriter(path) as w:
-            for k in range(600):
-                t = T0 + k * DT
-                w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=["a", "b"], position=np.zeros(2),
-                                                 velocity=np.array([speed, 0.5]), acceleration=np.zeros(2)),
-                        t, bags.REFERENCE_TYPE)
+        write_references(path, ["a", "b"], T0 + DT * np.arange(600), np.tile([speed, 0.5], (600, 1)))
         ev = cp.Event(9, "sim", 1.0, "stop", fault="frozen", joint="a")
         stop = T0 + 1_500_000_000
         o = cp.Outcome(ev, fault_ns=T0 + 4 * DT, observable_ns=T0 + 4 * DT, stops=[(stop, stop + DT, "violation")],
@@ -387,18 +393,12 @@ def test_a_rescore_opens_a_frozen_sensors_window_after_a_moves_tail(tmp_path):
     the fault), its stop by the stuck-sensor rule 20 ms into the next move 2.8 s later: the bag
     sets the window's start to that move (``frozen_before_motion``), and the stop is in time.
     Before: the window stayed at the tail and the stop counted as missed (event 44)."""
-    from reachset_ros import bags
     from reachset_ros.workflows.campaign import frozen_before_motion
     T0, DT = 10**18, 4_000_000
-    JR = bags.typestore().types[bags.REFERENCE_TYPE]
     path = tmp_path / "tail"
     move = 800
-    with bags.BagWriter(path) as w:
-        for k in range(1000):
-            t = T0 + k * DT
-            v = 0.3 if 60 <= k < 103 or k >= move else 0.0
-            w.write(bags.REFERENCE_TOPIC, JR(header=bags.header(t), name=["a"], position=np.zeros(1),
-                                             velocity=np.array([v]), acceleration=np.zeros(1)), t, bags.REFERENCE_TYPE)
+    k = np.arange(1000)
+    write_references(path, ["a"], T0 + DT * k, np.where(((k >= 60) & (k < 103)) | (k >= move), 0.3, 0.0)[:, None])
     ev = cp.Event(44, "sim", 1.0, "stop", fault="frozen", joint="a")
     fault, stop = T0 + 100 * DT, T0 + (move + 5) * DT
     o = cp.Outcome(ev, fault_ns=fault, observable_ns=fault + DT, stops=[(stop, stop + DT, "invalid_sample")],
