@@ -238,8 +238,8 @@ class MonitorCore:
             return [err]
         if not np.isfinite(vals).all():
             bad = np.flatnonzero(~np.isfinite(vals))
-            # at once, not when the tick's other half arrives: a NaN /joint_states sample has no
-            # /plant_input (the observer skips it, the loop waits), so it would never pair
+            # at once, not when the tick's other half arrives: that half may never come (a
+            # controller that gets no estimate for the sample commands nothing for its stamp)
             self.counters["invalid_" + kind] += 1
             j = self.joints[int(bad[0])]
             return [FaultEvent(stamp, "invalid_sample",

@@ -8,7 +8,9 @@ the same code the synthesis certified. At a measurement stamped t the estimate
 :class:`~reachset_ros.systems.closedloop.FeedbackLaw`) is published stamped t; the observer
 state advances once the plant input stamped t arrives (the ESO needs it; the HG observer
 ignores it). It starts (and restarts after a gain change) at the first measurement from
-``LinearObserver.start_state``. Gains change only through the parameter service,
+``LinearObserver.start_state``. A sample it cannot use (a joint missing, a non-finite
+position) leaves the observer state as it was and is published as an estimate of NaN with the
+sample's stamp, so the controller brakes on that tick (its "no usable estimate" stop). Gains change only through the parameter service,
 atomically between ticks, and pass the same gate as the controller's
 (:func:`~reachset_ros.nodes.gain_params.validate_pair`: the pair's closed loop stable and,
 with a ``model_file``, R*_u inside U_p for the monitored sets; without one only with
@@ -64,8 +66,9 @@ class ObserverNode(Node):
 
     def publish_diagnostics(self):
         """About 1 Hz: the counts of skipped inputs; WARN when samples were unusable since the
-        last report (a non-finite /joint_states is skipped: no estimate for that tick, the
-        monitor stops on it), and the joints whose gains run uncertified."""
+        last report (an unusable /joint_states sample is published as an estimate of NaN, on
+        which the controller brakes and the monitor stops), and the joints whose gains run
+        uncertified."""
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         st = DiagnosticStatus(name="reachset_ros: observer", hardware_id="")
@@ -139,11 +142,11 @@ class ObserverNode(Node):
         stamp = stamp_ns(msg.header.stamp)
         idx = {n: i for i, n in enumerate(msg.name)}
         if any(j not in idx for j in self.joints) or len(msg.position) < len(msg.name):
-            self.counters["bad_sample"] += 1
+            self.unusable_sample(msg)
             return
         y = {j: float(msg.position[idx[j]]) for j in self.joints}
         if not all(np.isfinite(v) for v in y.values()):
-            self.counters["bad_sample"] += 1
+            self.unusable_sample(msg)
             return
         if self.pending is not None:
             # the plant input of the previous tick never came: advance with the last known one
@@ -162,6 +165,21 @@ class ObserverNode(Node):
         out.disturbance = [float(est[j][names[j].index("d")]) if "d" in names[j] else 0.0 for j in self.joints]
         self.pub.publish(out)
         self.pending = (stamp, y)
+
+    def unusable_sample(self, msg):
+        """A /joint_states sample without a finite position of every joint: counted, the
+        observer state untouched (a NaN would poison it for good), and an estimate of all NaN
+        published with the sample's stamp. That is the controller's "no usable estimate": it
+        engages every brake on this tick. Skipping the tick instead left the controller without
+        a tick to act on, so it commanded nothing until the next finite sample (3 ticks late in
+        the fault campaign's NaN events)."""
+        self.counters["bad_sample"] += 1
+        out = JointEstimate()
+        out.header.stamp = msg.header.stamp
+        out.name = list(self.joints)
+        nan = [float("nan")] * len(self.joints)
+        out.position, out.velocity, out.disturbance = nan, nan, nan
+        self.pub.publish(out)
 
     def on_plant_input(self, msg):
         if self.pending is None:
