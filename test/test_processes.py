@@ -14,7 +14,7 @@ def _probe(profile_file):
     """A real rclpy participant created with ``profile_file`` as Fast DDS's profile file."""
     env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile_file))
     env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
-    return subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=300)   # bounds a hang only (make test OVERLAP=1 runs it at nice 19)
+    return subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=300)   # bounds a hang only (make test OVERLAP=1 runs it at the idle priority)
 
 
 def test_use_dds_profiles_names_the_suites_file_unless_the_user_named_one():
