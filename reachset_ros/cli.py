@@ -121,10 +121,31 @@ def command_in(argv) -> str:
     return word if word in COMMANDS else ""
 
 
+def _json_only_stdout():
+    """For a ``--json`` process: file descriptor 1 goes to stderr, and ``sys.stdout`` writes to
+    the original stdout, so that only the command's JSON is on it. Libraries below Python (the
+    DDS middleware's log) write to descriptor 1; one such line before the JSON made
+    ``reachset gains get --json`` unparseable in a loaded test run. Returns the restore function."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    out = open(saved, "w", encoding=sys.stdout.encoding or "utf-8", closefd=False)
+    sys.stdout = out
+
+    def restore():
+        out.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+    return restore
+
+
 def main(argv=None):
+    restore = None
     if argv is None:                # a process of its own (the console script, python -m)
         from .stacks import dump_on_sigusr1
         dump_on_sigusr1()
+        if "--json" in sys.argv[1:]:
+            restore = _json_only_stdout()
     streams = sys.stdout, sys.stderr
     # both: ``reachset ... 2>&1 | true`` closes the pipe stderr writes to as well
     sys.stdout, sys.stderr = (_ClosedPipeSafe(s) if not isinstance(s, _ClosedPipeSafe) and hasattr(s, "fileno")
@@ -139,6 +160,12 @@ def main(argv=None):
         return exit_status(f"reachset {args.command}", lambda: args._run(args), debug=args.debug)
     finally:
         sys.stdout, sys.stderr = streams
+        if restore is not None:
+            try:
+                restore()
+            except BrokenPipeError:     # the reader is gone: nothing left to keep
+                pass
+            sys.stdout = sys.__stdout__
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -136,3 +136,36 @@ def test_help_shows_every_options_default():
     p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", "--help"], capture_output=True,
                        text=True, timeout=300)   # bounds a hang only
     assert p.returncode == 0 and "(default: fd)" in p.stdout and "(default: 0.004)" in p.stdout, p.stdout
+
+
+CHATTER = """
+import os, sys
+from reachset_ros import cli
+from reachset_ros.commands import emit, inspect
+
+def run(args):                      # a library below Python writing to descriptor 1
+    os.write(1, b"[RTPS_TRANSPORT Warning] native chatter\\n")
+    emit(args, {"ok": True})
+    return 0
+
+inspect.run = run
+sys.argv = ["reachset", "inspect", "x.mcap"] + sys.argv[1:]
+sys.exit(cli.main())
+"""
+
+
+@pytest.mark.parametrize("json_flag", [True, False])
+def test_json_stdout_holds_the_json_only_whatever_writes_to_descriptor_1(json_flag):
+    """With ``--json`` the command's stdout is its JSON object alone: what a library writes to
+    file descriptor 1 (the DDS middleware's log) goes to stderr. Before, one such line in front
+    of the JSON made ``reachset gains get --json`` unparseable (a loaded test run). Without
+    ``--json`` nothing is redirected."""
+    import json
+    p = subprocess.run([sys.executable, "-c", CHATTER] + (["--json"] if json_flag else []),
+                       capture_output=True, text=True, timeout=300)   # bounds a hang only
+    assert p.returncode == 0, p.stderr
+    if json_flag:
+        assert json.loads(p.stdout) == {"ok": True}, p.stdout
+        assert "native chatter" in p.stderr
+    else:
+        assert "native chatter" in p.stdout and "native chatter" not in p.stderr

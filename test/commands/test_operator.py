@@ -201,6 +201,7 @@ def run_json(*args):
     # printed then)
     got = json.loads(out.stdout) if out.stdout.startswith("{") else {}
     assert out.returncode == 0, (out.returncode, got.get("nodes"), got.get("other_nodes"), out.stderr[-2000:])
+    assert got, ("stdout is not one JSON object", out.stdout[:2000], out.stderr[-2000:])
     return got
 
 
