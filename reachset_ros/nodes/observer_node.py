@@ -10,8 +10,8 @@ state advances once the plant input stamped t arrives (the ESO needs it; the HG 
 ignores it). It starts (and restarts after a gain change) at the first measurement from
 ``LinearObserver.start_state``. A sample it cannot use (a joint missing, a non-finite
 position) leaves the observer state as it was and is published as an estimate of NaN with the
-sample's stamp, so the controller brakes on that tick (its "no usable estimate" stop). Gains change only through the parameter service,
-atomically between ticks, and pass the same gate as the controller's
+sample's stamp, so the controller brakes on that tick (its "no usable estimate" stop). Gains
+change only through the parameter service, atomically between ticks, and pass the same gate as the controller's
 (:func:`~reachset_ros.nodes.gain_params.validate_pair`: the pair's closed loop stable and,
 with a ``model_file``, R*_u inside U_p for the monitored sets; without one only with
 ``allow_uncertified``), and the pair that will run with the controller's current gains passes
