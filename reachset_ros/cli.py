@@ -126,13 +126,15 @@ def _json_only_stdout():
     the original stdout, so that only the command's JSON is on it. Libraries below Python (the
     DDS middleware's log) write to descriptor 1; one such line before the JSON made
     ``reachset gains get --json`` unparseable in a loaded test run. Returns the restore function."""
-    sys.stdout.flush()
+    original = sys.stdout
+    original.flush()
     saved = os.dup(1)
     os.dup2(2, 1)
-    out = open(saved, "w", encoding=sys.stdout.encoding or "utf-8", closefd=False)
+    out = open(saved, "w", encoding=original.encoding or "utf-8", closefd=False)
     sys.stdout = out
 
     def restore():
+        sys.stdout = original
         out.flush()
         os.dup2(saved, 1)
         os.close(saved)
@@ -165,7 +167,6 @@ def main(argv=None):
                 restore()
             except BrokenPipeError:     # the reader is gone: nothing left to keep
                 pass
-            sys.stdout = sys.__stdout__
 
 if __name__ == "__main__":
     sys.exit(main())
