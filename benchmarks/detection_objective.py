@@ -15,7 +15,7 @@ nominal model, sets and inflation fitted on the 75 runs whose number is not divi
 the 25 others held out), the same per-joint table.
 
 Run: ``.venv/bin/python benchmarks/detection_objective.py [--costs linear detection]
-[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--real]``.
+[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--estimator lsq:4] [--real]``.
 """
 import argparse
 import json
@@ -72,9 +72,12 @@ def identify(cost, train, a):
     ``COST`` ``detection:S``: ``--cost detection --detection-window S`` (``detection`` alone:
     identify's default window)."""
     name, _, window = cost.partition(":")
-    out = CACHE / f"model_{name}{'_w' + window if window else ''}_k{a.calibrate}{'_real' if a.real else ''}.yaml"
+    est, _, est_window = (a.estimator or "").partition(":")
+    tag = f"_{est}{est_window}" if est else ""
+    out = CACHE / f"model_{name}{'_w' + window if window else ''}{tag}_k{a.calibrate}{'_real' if a.real else ''}.yaml"
     cmd = [str(REPO / ".venv" / "bin" / "reachset"), "identify", *map(str, train), "--calibrate", str(a.calibrate),
            "--cost", name, "--out", str(out)] + (["--detection-window", window] if window else [])
+    cmd += (["--estimator", est] if est else []) + (["--estimator-window", est_window] if est_window else [])
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}: {p.stderr.strip()[-400:]}")
@@ -87,10 +90,9 @@ def judge(model_path, held, accel):
     measurements (:func:`reachset_ros.conformance.validation.detection_delay`; None: never)."""
     from reachset_ros.bags import read_joint_series
     from reachset_ros.conformance import model as mdl
-    from reachset_ros.conformance.theorem1 import Theorem1
     from reachset_ros.conformance.validation import check_many, detection_delay
     m = mdl.load(model_path)
-    thm = Theorem1.build(m.plant, m.horizon)
+    thm = m.theorem1()
     series, _ = read_joint_series([Path(h) for h in held], list(m.joints), m.plant.dt)
     rows = {}
     for j, js in m.joints.items():
@@ -115,6 +117,8 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--calibrate", type=int, default=5)
     ap.add_argument("--fault-accel", type=float, default=6.0)
+    ap.add_argument("--estimator", metavar="NAME[:WINDOW]",
+                    help="identify --estimator NAME [--estimator-window WINDOW] (default: identify's)")
     ap.add_argument("--real", action="store_true", help="the real LWA-4P recordings (real-data protocol)")
     a = ap.parse_args(argv)
     if a.real:

@@ -58,7 +58,7 @@ ALLOWED = {
     "systems": {"errors", "defaults", "guarantees", "sets", "_lazy"},
     # bags: robot.lwa4p writes the imported LWA-4P recordings as bags (bags imports only errors)
     "robot": {"errors", "atomic", "bags", "_lazy"},
-    "conformance": {"errors", "atomic", "guarantees", "sets", "systems", "_lazy"},
+    "conformance": {"errors", "atomic", "defaults", "guarantees", "sets", "systems", "_lazy"},
     "bags": {"errors", "_lazy"},
     "synthesis": {"errors", "defaults", "guarantees", "sets", "systems", "conformance", "bags", "_lazy"},
     "fleet": {"errors", "robot", "conformance", "bags", "synthesis"},

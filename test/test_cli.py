@@ -135,7 +135,7 @@ def test_help_shows_every_options_default():
     assert shown > 10
     p = subprocess.run([sys.executable, "-m", "reachset_ros.cli", "identify", "--help"], capture_output=True,
                        text=True, timeout=300)   # bounds a hang only
-    assert p.returncode == 0 and "(default: fd)" in p.stdout and "(default: 0.004)" in p.stdout, p.stdout
+    assert p.returncode == 0 and "(default: lsq)" in p.stdout and "(default: 0.004)" in p.stdout, p.stdout
 
 
 CHATTER = """

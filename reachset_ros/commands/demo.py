@@ -51,7 +51,7 @@ def add_arguments(p):
     p.add_argument("--inflation", type=float, default=None, metavar="F",
                    help="inflation of the identified sets used by the monitor (model 'inflation'; the sets "
                         "are scaled by 1 + F); default: calibrated by 2-fold cross-validation on the two "
-                        "training recordings (reachset identify --calibrate 2 --initial-state-set)")
+                        "training recordings (reachset identify --calibrate 2 --initial-state-set --estimator fd)")
     # deprecated spelling of --inflation (hidden), so that old command lines still work
     p.add_argument("--margin", dest="inflation", type=float, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -61,8 +61,13 @@ def add_arguments(p):
                    help="accept a horizon below the plant's minimum (a weaker guarantee: some alpha is not "
                         "constrained by the data); recorded in the model file")
     p.add_argument("--out", help="write the model YAML here")
-    p.add_argument("--estimator", default="fd", choices=sorted(ESTIMATORS),
-                   help="initial-state estimator of the test cases (stored in the model)")
+    p.add_argument("--estimator", default=defaults.get("identify.estimator"), choices=sorted(ESTIMATORS),
+                   help="initial-state estimator of the test cases (stored in the model): fd, finite differences of "
+                        "two samples; lsq, a least-squares fit over --estimator-window + 1 samples (reads a step "
+                        "as less motion; docs/theory.md); observer, a Kalman predictor; output, pinv(C) y")
+    p.add_argument("--estimator-window", type=int, metavar="N",
+                   help=f"lsq: samples - 1 (default {defaults.get('estimator.lsq_window')}); observer: ticks "
+                        f"(default 20)")
     p.add_argument("--initial-state-set", action="store_true",
                    help="Theorem 1 with the estimator's initial-state error as a set made of the same noise and "
                         "disturbances (not charged to the test case's W and V; much smaller sets; docs/theory.md); "
@@ -122,7 +127,8 @@ def options_of(args):
     return IdentifyOptions(
         bags=tuple(args.bags), joints=parse_joints(args.joints), dt=args.dt, topics=topics_of(args),
         horizon=args.horizon, allow_weak_horizon=args.allow_weak_horizon,
-        estimator=args.estimator, initial_state_set=bool(args.initial_state_set), centers=args.centers,
+        estimator=args.estimator, estimator_window=args.estimator_window,
+        initial_state_set=bool(args.initial_state_set), centers=args.centers,
         alpha_lower=args.alpha_lower, cost=args.cost, detection_window=args.detection_window, method=args.method,
         inflation_rule=args.inflation_rule,
         validate=None if args.validate is None else tuple(args.validate),

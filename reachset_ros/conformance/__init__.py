@@ -50,7 +50,8 @@ batch sweep and the online monitor, which advances one tick at a time, produce b
 identical deviations and hence identical verdicts.
 
 May import: :mod:`reachset_ros._lazy` (the package's lazy attributes), :mod:`reachset_ros.sets`, :mod:`reachset_ros.systems`,
-:mod:`reachset_ros.errors`, :mod:`reachset_ros.guarantees` and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
+:mod:`reachset_ros.errors`, :mod:`reachset_ros.guarantees`, :mod:`reachset_ros.defaults` (registers the estimators'
+defaults) and :mod:`reachset_ros.atomic`; not synthesis, bags, robot, sim or
 nodes. Code inside reachset_ros imports from the submodules; ``from reachset_ros import conformance as cf; cf.sweep(...)`` is for users,
 tests and tools.
 """

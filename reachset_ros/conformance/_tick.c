@@ -1,7 +1,7 @@
 /* One tick of the online conformance monitor (paper Theorem 1, checked tick by tick).
  *
  * A compiled copy of reachset_ros.conformance.monitor.Monitor._tick_numpy for the per-joint LWA-4P
- * plant with the "fd" initial-state estimator. Every floating-point operation is the one
+ * plant with the "fd" or "lsq" initial-state estimator. Every floating-point operation is the one
  * numpy performs there, in the same order, each rounded on its own: this file must be
  * compiled with -ffp-contract=off (no fused multiply-add) and without -ffast-math, so
  * that the verdicts stay bitwise equal to `reachset check` (test/test_monitor_kernel.py
@@ -47,6 +47,10 @@ typedef struct {
     int8_t *status;           /* 0 ok, 1 violation, 2 invalid, 3 gap_reset */
     int64_t *longest;         /* largest step k checked this tick (-1: none) */
     double *use;              /* set use: largest |N y_a| / bound over the checks (NaN: none) */
+    /* the initial-state estimator: 0 "fd"; 1 "lsq" with weights EP (n x (H-1)) on the samples
+     * y[m-H+2..m] and ER (n x H) on the inputs u[m-H..m-1] (estimators.lsq_weights) */
+    int64_t est_kind;
+    const double *EP, *ER;
 } tick_state;
 
 /* out[c] = sum over the nonzero entries a of row `row` of M (n_cols wide), in order, of
@@ -107,10 +111,10 @@ static int64_t argmin(const double *v, int64_t n)
 /* The layout of tick_state above and the exported functions' signatures: kernels.TICK_ABI must
  * equal it, or kernels.py does not use this library (a stale build of an older layout would leave
  * fields unwritten, or lack a function). 2: `use` added; 3: reachset_sweep_extremes and
- * reachset_monitor_ticks added. */
+ * reachset_monitor_ticks added; 4: the "lsq" estimator (est_kind, EP, ER). */
 int64_t reachset_tick_abi(void)
 {
-    return 3;
+    return 4;
 }
 
 /* The smallest use reported for a violated check (set_use._ABOVE_ONE): nextafter(1.0, 2.0). */
@@ -184,8 +188,23 @@ int64_t reachset_monitor_tick(tick_state *s, int64_t stamp_ns, double *mp, doubl
         int64_t c = j * S + slot;
         s->active[c] = 0;
         if (s->in_segment[j] > H) {
-            /* the "fd" estimate, reachset_ros.conformance.estimators.fd_formula, same operation order */
             const double *yh = s->y_hist + j * W, *uh = s->u_hist + j * W;
+            if (s->est_kind == 1) {
+                /* the "lsq" estimate, reachset_ros.conformance.estimators._lsq, same operation order */
+                for (int64_t i = 0; i < n; ++i) {
+                    double acc = 0.0;
+                    for (int64_t q = 0; q < H - 1; ++q)
+                        if (s->EP[i * (H - 1) + q] != 0.0) acc = acc + s->EP[i * (H - 1) + q] * yh[2 + q];
+                    for (int64_t q = 0; q < H; ++q)
+                        if (s->ER[i * H + q] != 0.0) acc = acc + s->ER[i * H + q] * uh[q];
+                    X[i * NS + c] = acc;
+                }
+                s->start[c] = t;
+                s->ages[c] = 0;
+                s->active[c] = 1;
+                continue;
+            }
+            /* the "fd" estimate, reachset_ros.conformance.estimators.fd_formula, same operation order */
             double dt = s->dt;
             double ym = yh[3], ym1 = yh[2], u1 = uh[2], u2 = uh[1], u3 = uh[0];
             double v2 = (ym - ym1) / dt - 0.5 * dt * u3;

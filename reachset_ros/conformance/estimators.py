@@ -11,12 +11,21 @@ computation give bitwise identical results.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from .. import defaults
 from ..errors import ReachsetError
 from .kernels import matvec
+
+defaults.register("estimator", {
+    "lsq_window": (3, "samples - 1 of the 'lsq' initial-state estimator (identify --estimator-window): on the real "
+                      "LWA-4P (real-data protocol) 3 calibrated the same inflation as 'fd' (0.5) with 0 held-out "
+                      "violations and caught a +6 rad/s^2 fault 0-12 ms sooner per joint; 4 calibrated 0.2 and left "
+                      "5 held-out violating ticks on arm_5 (docs/performance.md, 'The lsq estimator')"),
+}, owner=__name__)
 
 
 @dataclass(frozen=True)
@@ -30,9 +39,12 @@ class Estimator:
         response (LWA-4P plant of Appendix A; exact on noise-free model data);
         ``"output"``: generic plant, x0 = pinv(C) y[m] (states not seen by C set to 0);
         ``"observer"``: a Kalman predictor (gains ``gain``) run over the last ``window``
-        ticks, started from pinv(C) y[m - window] (:func:`observer_gains`, :func:`_observer`).
+        ticks, started from pinv(C) y[m - window] (:func:`observer_gains`, :func:`_observer`);
+        ``"lsq"``: position and velocity fitted by least squares to the last ``window`` + 1
+        samples through the model's input response (LWA-4P plant; exact on noise-free model
+        data, so it works with the initial-state set; :func:`lsq_weights`).
     window : int
-        Ticks the ``observer`` runs over (0 for the others).
+        Ticks the ``observer`` runs over; the ``lsq`` fit's samples minus one (0 for the others).
     gain : tuple
         The ``observer``'s gains L_0..L_{window-1}, each (n, ny) (:func:`observer_gains`;
         empty for the others).
@@ -47,7 +59,7 @@ class Estimator:
     @property
     def history(self) -> int:
         """Number of past ticks (before m) the estimator reads, all in the same segment."""
-        return {"fd": 3, "output": 0, "observer": self.window}[self.name]
+        return {"fd": 3, "output": 0, "observer": self.window, "lsq": self.window + 2}[self.name]
 
     @classmethod
     def observer(cls, plant, window=20, noise_ratio=1e-4):
@@ -58,24 +70,46 @@ class Estimator:
         return cls("observer", int(window), _tuple3(G))
 
     @classmethod
-    def named(cls, name, plant):
-        """The estimator ``name`` with its defaults for ``plant`` (the command line's choice)."""
-        if name == "observer":
-            return cls.observer(plant)
+    def lsq(cls, plant, window=None):
+        """The ``lsq`` estimator over ``window`` + 1 samples (:func:`lsq_weights`; None: the
+        default ``estimator.lsq_window``)."""
+        window = defaults.get("estimator.lsq_window") if window is None else window
+        if not (isinstance(window, (int, np.integer)) and not isinstance(window, bool) and 1 <= window <= 1000):
+            raise ReachsetError(f"lsq window must be an integer in [1, 1000], got {window!r}")
+        lsq_weights(plant, int(window))       # refuses a plant it is not for
+        return cls("lsq", int(window))
+
+    @classmethod
+    def named(cls, name, plant, window=None):
+        """The estimator ``name`` for ``plant`` (the command line's choice); ``window``: the
+        ``lsq`` or ``observer`` window (None: its default), refused for the others."""
         if name not in ESTIMATORS:
             raise ReachsetError(f"unknown initial-state estimator {name!r}; known: {sorted(ESTIMATORS)}")
+        if name == "observer":
+            return cls.observer(plant) if window is None else cls.observer(plant, window)
+        if name == "lsq":
+            return cls.lsq(plant, window)
+        if window is not None:
+            raise ReachsetError(f"--estimator-window is for the 'lsq' and 'observer' estimators, not {name!r}")
         return cls(name)
 
     def as_dict(self):
         if self.name == "observer":
             return {"name": self.name, "window": int(self.window),
                     "gains": [[list(r) for r in L] for L in self.gain]}
+        if self.name == "lsq":
+            return {"name": self.name, "window": int(self.window)}
         return {"name": self.name}
 
     @classmethod
     def from_dict(cls, d):
         if not isinstance(d, dict) or not isinstance(d.get("name"), str) or d["name"] not in ESTIMATORS:
             raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
+        if d["name"] == "lsq":
+            w = d.get("window")
+            if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 1000:
+                raise ReachsetError(f"lsq estimator: window must be an integer in [1, 1000], got {w!r}")
+            return cls("lsq", w)
         if d["name"] != "observer":
             return cls(d["name"])
         w, g = d.get("window"), d.get("gains")
@@ -128,6 +162,8 @@ class Estimator:
         """
         if self.name == "observer":
             return _observer(plant, y, u, m, self.window, self.gain)
+        if self.name == "lsq":
+            return _lsq(plant, y, u, m, self.window)
         return ESTIMATORS[self.name](plant, y, u, m)
 
 
@@ -292,4 +328,71 @@ def _observer(plant, y, u, m, window, gains):
     return X
 
 
-ESTIMATORS = {"fd": _fd, "output": _output, "observer": _observer}
+def lsq_weights(plant, window):
+    """The ``lsq`` estimate's weights: ``x0 = P y[m-N..m] + R u[m-N-2..m-1]`` (N = ``window``).
+
+    Per-joint LWA-4P plant (Appendix A), disturbance state d = 0. With y[t] = q[t-1], the
+    N + 1 samples y[m-N..m] are the positions q[m-N-1..m-1], which the nominal model makes
+    affine in the position and velocity at t0 = m-N-1 and the inputs that acted:
+
+        q[t+1] = q[t] + dt qdot[t] + dt^2/2 u[t-1],   qdot[t+1] = qdot[t] + dt u[t-1].
+
+    Those two are fitted by least squares (equal weights) and propagated to
+    x0 = [q[m-1], q[m], qdot[m], 0, u[m-1]]. Exact on noise-free model data (so
+    :func:`~reachset_ros.conformance.theorem1.initial_error_maps` exists); ``window = 1`` is
+    the exact interpolation of two samples, the ``fd`` estimate up to rounding. A longer window
+    averages the measurement noise (a step of the samples reads as less motion) and lets the
+    model's disturbances over the window into the estimate.
+    Returns ``(P, R)``, shapes (5, N + 1) and (5, N + 2).
+    """
+    if plant.A.shape[0] != 5 or plant.C.shape[0] != 1:
+        raise ReachsetError("estimator 'lsq' is for the per-joint LWA-4P plant (5 states, 1 output); "
+                            "use 'output' or 'observer' for other plants")
+    return _lsq_weights(float(plant.dt), int(window))
+
+
+@functools.lru_cache(maxsize=32)
+def _lsq_weights(h, N):
+    """:func:`lsq_weights` for time step ``h`` and window ``N`` (computed once, read-only)."""
+    nU = N + 2                                   # u[m-N-2 .. m-1]; u[t] is U[t - (m-N-2)]
+    dim = 2 + nU                                 # coefficients over [q[t0], qdot[t0], U...]
+    q, qd = np.zeros(dim), np.zeros(dim)
+    q[0], qd[1] = 1.0, 1.0
+    rows = []
+    for j in range(N + 1):                       # t = t0 + j; y[t + 1] = q[t]
+        rows.append(q.copy())
+        up = np.zeros(dim)
+        up[2 + j] = 1.0                          # u[t-1] = u[m-N-2+j]
+        q, qd = q + h * qd + 0.5 * h * h * up, qd + h * up
+    # after the loop: q, qd at t0 + N + 1 = m; rows[-1] = q[m-1]
+    F = np.array(rows)
+    Fp = np.linalg.pinv(F[:, :2])
+    X = np.zeros((5, dim))
+    X[0], X[1], X[2] = rows[-1], q, qd
+    X[4, 2 + nU - 1] = 1.0                       # u[m-1]
+    P = X[:, :2] @ Fp
+    R = X[:, 2:] - X[:, :2] @ Fp @ F[:, 2:]
+    P.flags.writeable = False
+    R.flags.writeable = False
+    return P, R
+
+
+def _lsq(plant, y, u, m, window):
+    """The ``lsq`` estimate (:func:`lsq_weights`), element-wise, in a fixed order."""
+    P, R = lsq_weights(plant, window)
+    m = np.asarray(m)
+    N = int(window)
+    X0 = np.zeros((5, len(m)))
+    for i in range(5):
+        acc = np.zeros(len(m))
+        for j in range(N + 1):
+            if P[i, j] != 0.0:
+                acc = acc + P[i, j] * y[m - N + j, 0]
+        for j in range(N + 2):
+            if R[i, j] != 0.0:
+                acc = acc + R[i, j] * u[m - N - 2 + j, 0]
+        X0[i] = acc
+    return X0
+
+
+ESTIMATORS = {"fd": _fd, "output": _output, "observer": _observer, "lsq": _lsq}

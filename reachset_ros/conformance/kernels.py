@@ -55,8 +55,8 @@ _I = ctypes.c_int64
 
 #: the layout of ``tick_state`` in ``_tick.c`` this module's mirror expects and the exported
 #: functions' signatures (``reachset_tick_abi``; 3: ``reachset_sweep_extremes`` and
-#: ``reachset_monitor_ticks`` added)
-TICK_ABI = 3
+#: ``reachset_monitor_ticks`` added; 4: the ``lsq`` estimator)
+TICK_ABI = 4
 
 
 def _load():

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
+from .estimators import lsq_weights
 from .kernels import advance, matvec, matvec_into, matvec_plan, predict_output
 from .set_use import check_use
 
@@ -378,6 +379,10 @@ class Monitor:
              "act": self.active.view(np.uint8),
              # the outputs, rows of two blocks: a tick's result is two copies (issue 38.4)
              "F": np.empty((4, J)), "I": np.empty((4, J), np.int64)}
+        if self.estimator.name == "lsq":       # its weights (the numpy path computes the same ones)
+            k["EP"], k["ER"] = (f8(w) for w in lsq_weights(p, self.estimator.window))
+        else:
+            k["EP"] = k["ER"] = np.zeros(1)
         F, I = k["F"], k["I"]
         o = k["out"] = {"margin": F[0], "deviation": F[1], "bound": F[2], "use": F[3], "checked": I[0], "step": I[1],
                         "start_tick": I[2], "longest": I[3], "status": np.empty(J, np.int8)}
@@ -395,7 +400,8 @@ class Monitor:
             y_in=ptr(k["y"]), u_in=ptr(k["u"]),
             margin=ptr(o["margin"]), deviation=ptr(o["deviation"]), bound=ptr(o["bound"]),
             checked=ptr(o["checked"]), step=ptr(o["step"]), start_tick=ptr(o["start_tick"]),
-            status=ptr(o["status"]), longest=ptr(o["longest"]), use=ptr(o["use"]))
+            status=ptr(o["status"]), longest=ptr(o["longest"]), use=ptr(o["use"]),
+            est_kind=int(self.estimator.name == "lsq"), EP=ptr(k["EP"]), ER=ptr(k["ER"]))
         k["state"] = st
         k["ptr"] = ctypes.cast(ctypes.pointer(st), ctypes.c_void_p)
         k["mp_ptr"], k["mm_ptr"] = ptr(k["mp"]), ptr(k["mm"])
@@ -505,11 +511,13 @@ class _TickState(ctypes.Structure):
                     "dp", "dm", "X0", "X1", "cur", "start", "ages", "active", "y_hist", "u_hist",
                     "in_segment", "tick_index", "last_stamp", "has_last", "Y", "Ny", "U", "BU",
                     "y_in", "u_in", "margin", "deviation", "bound", "checked", "step", "start_tick",
-                    "status", "longest", "use")])
+                    "status", "longest", "use")]
+                + [("est_kind", ctypes.c_int64), ("EP", ctypes.c_void_p), ("ER", ctypes.c_void_p)])
 
 
 def _tick_kernel_applies(plant, estimator, joints):
-    """The compiled kernel covers the per-joint LWA-4P plant (5 states, 1 in, 1 out) with ``fd``."""
-    return (kernels.LIB is not None and estimator.name == "fd" and plant.A.shape == (5, 5)
+    """The compiled kernel covers the per-joint LWA-4P plant (5 states, 1 in, 1 out) with ``fd``
+    or ``lsq``."""
+    return (kernels.LIB is not None and estimator.name in ("fd", "lsq") and plant.A.shape == (5, 5)
             and plant.B.shape == (5, 1) and plant.C.shape == (1, 5) and plant.D.shape == (1, 1)
             and 0 < joints <= 64)

@@ -84,7 +84,7 @@ def initial_error_maps(plant, estimator, tol=1e-9):
         e, size = error(x0, rng.standard_normal((T, nu)), np.zeros((T, n)), np.zeros((T, ny)), True)
         if np.abs(e).max() > tol * size:
             raise ReachsetError(f"the initial-state set needs an estimator that is exact on noise-free model data; "
-                                f"{estimator.name!r} is not (error {np.abs(e).max():.3g}); use 'fd'")
+                                f"{estimator.name!r} is not (error {np.abs(e).max():.3g}); use 'fd' or 'lsq'")
     zero_u, zw, zv = np.zeros((T, nu)), np.zeros((T, n)), np.zeros((T, ny))
 
     def unit(shape, t, i):

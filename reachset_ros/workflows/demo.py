@@ -73,7 +73,7 @@ def run_demo(*, workdir: Path, record: Path, duration: float, fault_at: float | 
 
     ``inflation``: the monitor checks against the identified sets scaled by ``1 + inflation``
     (the model's ``inflation``). None (default): calibrated by 2-fold cross-validation on the
-    two training recordings (``reachset identify BAG1 BAG2 --calibrate 2 --initial-state-set``,
+    two training recordings (``reachset identify BAG1 BAG2 --calibrate 2 --initial-state-set --estimator fd``,
     :mod:`reachset_ros.conformance.calibration`), and the second synthesis is certified for
     it. ``stop``: a :class:`reachset_ros.processes.StopRequest`; once it
     has a signal, the next spin raises :class:`reachset_ros.processes.Interrupted` and every node
@@ -331,13 +331,15 @@ def synthesis_arguments():
 def calibrate_inflation(*, bags, workdir):
     """The monitor's inflation from the training recordings alone: the identification workflow
     with ``calibrate=2`` and ``initial_state_set`` (``reachset identify BAGS --calibrate 2
-    --initial-state-set``; the synthesis' Theorem-1 rows; each recording a fold: the sets
+    --initial-state-set --estimator fd``; the synthesis' Theorem-1 rows and estimator; each recording a fold: the sets
     identified on one must hold on the other,
     :func:`reachset_ros.conformance.calibration.cross_validate`), in a low-priority worker
     process. Returns ``(inflation, details)``; a flagged joint (no grid value held) is
     reported, and its largest grid value is used."""
-    command = " ".join(["reachset identify", *map(str, bags), "--calibrate 2 --initial-state-set"])
-    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=2, initial_state_set=True, command=command)
+    # the synthesis' estimator (synthesis.pipeline: fd), not identify's default: its rows are calibrated
+    command = " ".join(["reachset identify", *map(str, bags), "--calibrate 2 --initial-state-set --estimator fd"])
+    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=2, initial_state_set=True, estimator="fd",
+                           command=command)
     try:
         r = run_in_worker(identify, opts).to_json()
     except ReachsetError as e:

@@ -82,7 +82,9 @@ def test_calibration_folds_are_whole_runs_and_the_inflation_is_what_each_fold_ne
     grid = [0.0, *DEFAULT_GRID]
     infl = {n: j["inflation"] for n, j in ident["joints"].items()}
     assert ident["inflation"] == max(infl.values())
-    plant, est = lwa4p_joint_plant(), Estimator.named("fd", lwa4p_joint_plant())
+    from reachset_ros import defaults
+    plant = lwa4p_joint_plant()
+    est = Estimator.named(defaults.get("identify.estimator"), plant)      # identify's default
     thm = Theorem1.build(plant, H)
     needed = {n: v == 0.0 for n, v in infl.items()}
     for f in range(K):

@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pytest
 
+from reachset_ros import defaults
 from reachset_ros import bags
 from reachset_ros import conformance as cf
 from reachset_ros.conformance import model as mdl
@@ -207,6 +208,12 @@ def write_bag(path, y, u, names, stamps, shuffle_names=False, extra_joint=False)
                                                        [u[i, j] for j in order]), recv + 1000)
 
 
+def identify_default_estimator(p):
+    """``reachset identify``'s default initial-state estimator (``identify.estimator``)."""
+    from reachset_ros.workflows import identify  # noqa: F401  (registers the identify.* defaults)
+    return Estimator.named(defaults.get("identify.estimator"), p)
+
+
 def fault_check_equals_replay(tmp_path, y, u, names, model):
     """A constant acceleration from tick 2000 on the first joint: ``reachset check`` (batch)
     and ``reachset replay`` (the monitor's code path) flag exactly the same ticks."""
@@ -241,7 +248,8 @@ def test_cli_identify_check_replay_and_messy_bags(tmp_path, lwa_data):
     assert set(ident["joints"]) == set(names)
     for j in ident["joints"].values():
         assert set(j) >= {"alpha_w", "alpha_v", "c_w", "c_v", "test_cases", "horizon"}
-        assert j["test_cases"] == 2 * (1000 - Estimator("fd").history) and j["horizon"] == 50
+        est = identify_default_estimator(p)
+        assert j["test_cases"] == 2 * (1000 - est.history) and j["horizon"] == 50
     r2 = run_cli("identify", messy, "--horizon", "50", "--json")
     assert r2.returncode == 0, r2.stderr
     messy_ident = json.loads(r2.stdout)

@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pytest
 
+from reachset_ros import defaults
 from reachset_ros.conformance import model as mdl
 from reachset_ros.errors import ReachsetError
 from reachset_ros.conformance.estimators import Estimator, pinned_states
@@ -121,3 +122,84 @@ def test_cli_identify_with_the_observer_estimator_then_check_equals_replay(tmp_p
     assert chk["conformant"]
     # a fault: the batch check and the monitor's code path flag exactly the same ticks
     fault_check_equals_replay(tmp_path, y, u, names, model)
+
+
+# ---- lsq: a least-squares fit over a window (reads a step of the samples as less motion)
+
+def test_lsq_is_exact_on_noise_free_model_data_and_its_window_of_one_is_fd():
+    p = lwa4p_joint_plant()
+    X, y, u = noise_free(p, 300, d0=0.0)
+    m = np.arange(20, 300)
+    for w in (1, 2, 4, 9):
+        e = Estimator.lsq(p, w)
+        assert e.history == w + 2
+        assert np.abs(e.estimate(p, y, u, m) - X[m].T).max() < 1e-10, w
+    rng = np.random.default_rng(3)
+    yn, un = rng.standard_normal((200, 1)), rng.standard_normal((200, 1))
+    mm = np.arange(5, 200)
+    assert np.allclose(Estimator.lsq(p, 1).estimate(p, yn, un, mm), Estimator("fd").estimate(p, yn, un, mm),
+                       rtol=0, atol=1e-9)
+
+
+def test_lsq_reads_a_step_of_the_samples_as_less_motion_than_fd():
+    """A step b in the newest sample (a sensor bias starting there): fd reads b / dt of velocity,
+    the window-4 fit a fifth of it; the test case that starts on the step then drifts
+    five times slower from the measurements that follow (issue 35, docs/theory.md)."""
+    p = lwa4p_joint_plant()
+    y, u = np.zeros((10, 1)), np.zeros((10, 1))
+    y[-1] = 1e-4
+    m = np.array([9])
+    v_fd = Estimator("fd").estimate(p, y, u, m)[2, 0]
+    v_lsq = Estimator.lsq(p, 4).estimate(p, y, u, m)[2, 0]
+    assert v_fd == pytest.approx(1e-4 / p.dt)
+    assert v_lsq == pytest.approx(0.2 * 1e-4 / p.dt)
+
+
+def test_lsq_estimate_of_a_test_case_does_not_depend_on_the_batch_and_the_monitor_agrees():
+    p = lwa4p_joint_plant()
+    y, u = simulate(p, 500, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=1)
+    e = Estimator.lsq(p, 4)
+    m = np.arange(e.history, 500)
+    all_at_once = e.estimate(p, y, u, m)
+    one_by_one = np.hstack([e.estimate(p, y, u, m[i:i + 1]) for i in range(0, len(m), 37)])
+    assert all_at_once[:, ::37].tobytes() == one_by_one.tobytes()
+    # the monitor's path (newest sample of each row) for three joints at once
+    H = e.history
+    rows = [y[t - H:t + 1, 0] for t in (100, 250, 400)]
+    urows = [u[t - H:t + 1, 0] for t in (100, 250, 400)]
+    latest = e.estimate_latest(p, np.array(rows), np.array(urows))
+    assert latest.tobytes() == all_at_once[:, [100 - H, 250 - H, 400 - H]].tobytes()
+
+
+def test_lsq_estimator_file_round_trip_bad_files_and_window_option():
+    p = lwa4p_joint_plant()
+    e = Estimator.named("lsq", p, 6)
+    assert Estimator.from_dict(e.as_dict()) == e and e.as_dict() == {"name": "lsq", "window": 6}
+    assert Estimator.named("lsq", p).window == defaults.get("estimator.lsq_window") == 3
+    for bad in ({"name": "lsq"}, {"name": "lsq", "window": 0}, {"name": "lsq", "window": True},
+                {"name": "lsq", "window": 2.5}):
+        with pytest.raises(ReachsetError, match="lsq estimator: window"):
+            Estimator.from_dict(bad)
+    with pytest.raises(ReachsetError, match="--estimator-window is for"):
+        Estimator.named("fd", p, 3)
+
+
+@pytest.mark.slow
+def test_cli_identify_with_the_lsq_estimator_and_its_initial_state_set_then_check_equals_replay(tmp_path):
+    p = lwa4p_joint_plant()
+    y, u = simulate(p, 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)
+    names = ["arm_1_joint"]
+    bag, model = tmp_path / "bag", tmp_path / "m.yaml"
+    write_bag(bag, y, u, names, T0 + DT_NS * np.arange(3000))
+    r = run_cli("identify", bag, "--horizon", "40", "--estimator", "lsq", "--estimator-window", "3",
+                "--initial-state-set", "--out", model, "--json")
+    assert r.returncode == 0, r.stderr
+    m = mdl.load(model)
+    assert m.estimator == Estimator("lsq", 3) and m.initial_state_set
+    assert json.loads(r.stdout)["joints"]["arm_1_joint"]["test_cases"] == 3000 - 5
+    chk = json.loads(run_cli("check", bag, "--model", model, "--json").stdout)
+    assert chk["conformant"]
+    fault_check_equals_replay(tmp_path, y, u, names, model)
+    bad = run_cli("identify", bag, "--horizon", "40", "--estimator", "fd", "--estimator-window", "3",
+                  "--out", tmp_path / "x.yaml")
+    assert bad.returncode == 2 and "--estimator-window is for" in bad.stderr and not (tmp_path / "x.yaml").exists()

@@ -11,7 +11,7 @@ from reachset_ros.errors import InfeasibleError
 from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.systems.plant import LinearPlant, lwa4p_joint_plant
 
-from test_conformance import DT_NS, T0, run_cli, simulate, write_bag
+from test_conformance import DT_NS, T0, identify_default_estimator, run_cli, simulate, write_bag
 
 LWA_W, LWA_V = np.array([0.03, 3.0]), np.array([3.5e-5])
 DT = 0.01
@@ -219,7 +219,8 @@ def test_cli_cost_method_validate(tmp_path, held_out):
         v = j["validation"]
         assert set(v) >= {"at_zero", "grid", "chosen_inflation", "flagged", "model_inflation", "fault",
                           "checked_ticks", "at_model_inflation"}
-        assert v["checked_ticks"] == 3000 - Estimator("fd").history
+        est = identify_default_estimator(lwa4p_joint_plant())
+        assert v["checked_ticks"] == 3000 - est.history
         # per joint its own smallest conformant inflation (--inflation-rule per-joint, issue 35.1); the
         # model-level is the largest
         assert v["model_inflation"] == v["chosen_inflation"] == j["inflation"] <= infl and not v["flagged"]

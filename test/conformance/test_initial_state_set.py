@@ -11,7 +11,8 @@ from reachset_ros.conformance.estimators import Estimator
 from reachset_ros.errors import ReachsetError
 from reachset_ros.sim import recordings as sr
 from reachset_ros.systems.plant import lwa4p_joint_plant
-from test_conformance import DT_NS, T0, fault_check_equals_replay, run_cli, simulate, write_bag
+from test_conformance import (DT_NS, T0, fault_check_equals_replay, identify_default_estimator, run_cli, simulate,
+                              write_bag)
 
 AW, AV = np.array([0.03, 3.0]), np.array([3.5e-5])
 
@@ -58,7 +59,8 @@ def test_cli_identify_check_replay_with_the_initial_state_set(tmp_path):
     assert json.loads(r.stdout)["initial_state_set"] is True
     m = mdl.load(model)
     assert m.initial_state_set and "initial_state_set: true" in model.read_text()
-    assert m.theorem1().Dp[3].tobytes() == cf.Theorem1.build(p, 40, Estimator("fd")).Dp[3].tobytes()
+    assert m.estimator == identify_default_estimator(p)
+    assert m.theorem1().Dp[3].tobytes() == cf.Theorem1.build(p, 40, m.estimator).Dp[3].tobytes()
     assert run_cli("identify", bag, "--horizon", "40", "--out", plain).returncode == 0
     assert "initial_state_set" not in plain.read_text()
     assert mdl.load(model).joints["arm_1_joint"].alpha_v[0] < mdl.load(plain).joints["arm_1_joint"].alpha_v[0]

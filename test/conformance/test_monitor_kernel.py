@@ -27,13 +27,13 @@ def closed_loop(p, T, J, seed):
     return Y, U
 
 
-def model_for(p, Y, U, K, scale=1.0):
+def model_for(p, Y, U, K, scale=1.0, est=Estimator()):
     thm = cf.Theorem1.build(p, K)
     joints = {}
     for j in range(Y.shape[1]):
-        s = cf.identify_sets(p, thm, cf.deviation_extremes(p, Estimator(), Y[:, j], U[:, j], ((0, len(Y)),), K, thm))
+        s = cf.identify_sets(p, thm, cf.deviation_extremes(p, est, Y[:, j], U[:, j], ((0, len(Y)),), K, thm))
         joints[f"j{j}"] = JointSets(tuple(scale * s.alpha_w), tuple(scale * s.alpha_v), tuple(s.c_w), tuple(s.c_v))
-    return ConformanceModel(p, {"kind": "lwa4p_joint", "dt": p.dt}, Estimator(), K, joints), thm
+    return ConformanceModel(p, {"kind": "lwa4p_joint", "dt": p.dt}, est, K, joints), thm
 
 
 def messy_stream(Y, U, seed):
@@ -54,13 +54,13 @@ def messy_stream(Y, U, seed):
 
 
 @needs_kernel
-@pytest.mark.parametrize("plant_kind", ["lwa4p", "with_feedthrough"])
-def test_kernel_equals_numpy_bit_for_bit(plant_kind):
+@pytest.mark.parametrize("plant_kind,estimator", [("lwa4p", "fd"), ("with_feedthrough", "fd"), ("lwa4p", "lsq")])
+def test_kernel_equals_numpy_bit_for_bit(plant_kind, estimator):
     p = lwa4p_joint_plant()
     if plant_kind == "with_feedthrough":   # exercise the D-term, a non-unit normal is covered by N = 1 only
         p = LinearPlant(p.A, p.B, p.C, np.array([[0.25 * p.dt ** 2]]), p.Gw, p.Gv, p.dt)
     Y, U = closed_loop(p, 2200, 6, seed=1)
-    model, thm = model_for(p, Y[:1000], U[:1000], K=40, scale=1.02)
+    model, thm = model_for(p, Y[:1000], U[:1000], K=40, scale=1.02, est=Estimator.named(estimator, p))
     mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(6)]
     a, b = Monitor(mms, kernel=True), Monitor(mms, kernel=False)
     assert a.kernel and not b.kernel
@@ -81,10 +81,12 @@ def test_kernel_equals_numpy_bit_for_bit(plant_kind):
 
 
 @needs_kernel
-def test_kernel_verdicts_equal_the_batch_check():
+@pytest.mark.parametrize("estimator", ["fd", "lsq"])
+def test_kernel_verdicts_equal_the_batch_check(estimator):
     p = lwa4p_joint_plant()
     Y, U = closed_loop(p, 3000, 3, seed=4)
-    model, thm = model_for(p, Y[:2000], U[:2000], K=60)
+    est = Estimator.named(estimator, p)
+    model, thm = model_for(p, Y[:2000], U[:2000], K=60, est=est)
     Y = Y.copy()
     Y[2400:, 0] += 2e-4 * np.arange(600) ** 2 * 4e-3      # fault on joint 0
     mms = [MonitorModel.from_model(model, f"j{j}", thm) for j in range(3)]
@@ -98,7 +100,7 @@ def test_kernel_verdicts_equal_the_batch_check():
                 viol[j] += 1
                 first[j] = t if first[j] is None else first[j]
     for j in range(3):
-        res = cf.check(p, thm, Estimator(), model.joints[f"j{j}"].xi(model.inflation), Y[:, j], U[:, j],
+        res = cf.check(p, thm, est, model.joints[f"j{j}"].xi(model.inflation), Y[:, j], U[:, j],
                        ((0, len(Y)),), 60)
         assert res.violations == viol[j]
         assert res.first_violation_tick == (-1 if first[j] is None else first[j])
@@ -134,7 +136,7 @@ def test_joint_monitor_equals_numpy_tick(plant_kind):
 def test_the_loaded_kernel_has_the_state_layout_of_its_mirror():
     """A library built from an older _tick.c (a tick_state without ``use``) would leave the set
     use unwritten: kernels.py loads only one whose reachset_tick_abi is kernels.TICK_ABI."""
-    assert kernels.LIB.reachset_tick_abi() == kernels.TICK_ABI == 3
+    assert kernels.LIB.reachset_tick_abi() == kernels.TICK_ABI == 4
 
 
 def batch_segments(stamps, y, u, dt):
