@@ -54,11 +54,15 @@ def setup():
     return dt.Setup(gains=gains, reference_config=ReferenceConfig(lead=REFERENCE_LEAD))
 
 
-def train_model(su, *, runs, seconds, folds, log, cost=None):
-    """``reachset identify BAGS --calibrate FOLDS`` on ``runs`` fault-free simulated runs (run
-    numbers not divisible by 4), cached by its parameters; returns the model file."""
+def train_model(su, *, runs, seconds, folds, log, cost=None, estimator=None):
+    """``reachset identify BAGS --calibrate FOLDS [--estimator NAME --estimator-window W]`` on
+    ``runs`` fault-free simulated runs (run numbers not divisible by 4), cached by its
+    parameters; returns the model file. ``estimator``: ``NAME[:W]`` (None: identify's default)."""
     numbers = [i for i in range(1, 4 * runs) if i % 4][:runs]
     cost = cost or defaults.get("identify.cost")
+    name, _, w = (estimator or defaults.get("identify.estimator")).partition(":")
+    w = int(w) if w else (defaults.get("estimator.lsq_window") if name == "lsq" else None)
+    est_opts = ["--estimator", name] + (["--estimator-window", str(w)] if w is not None else [])
     window = defaults.get("identify.detection_window") if cost == "detection" else None
     # (the key of a model identified before --detection-window, with the whole horizon, is unchanged)
     key = hashlib.sha256(json.dumps([numbers, seconds, folds, INITIAL_GAINS, REFERENCE_LEAD, 1]
@@ -66,7 +70,8 @@ def train_model(su, *, runs, seconds, folds, log, cost=None):
                                     + ([window] if window else []),
                                     sort_keys=True).encode()).hexdigest()[:12]
     d = CACHE / f"min_detectable_{key}"
-    model = d / "model.yaml"
+    # the same training bags for every estimator; fd's model keeps the name it had before lsq
+    model = d / ("model.yaml" if name == "fd" else f"model_{name}{w or ''}.yaml")
     if model.exists():
         log(f"model {model} (cached)")
         return model
@@ -79,9 +84,10 @@ def train_model(su, *, runs, seconds, folds, log, cost=None):
             write_recordings(bag, recs)
         bags.append(str(bag))
         log(f"training run {i}: {bag}")
-    res = identify(IdentifyOptions(bags=tuple(bags), calibrate=folds, out=model, cost=cost,
+    res = identify(IdentifyOptions(bags=tuple(bags), calibrate=folds, out=model, cost=cost, estimator=name,
+                                   estimator_window=w,
                                    command=f"reachset identify {' '.join(bags)} --calibrate {folds} --cost {cost} "
-                                           f"--out {model}"))
+                                           f"{' '.join(est_opts)} --out {model}"))
     log(f"identified: inflation {res.inflation}")
     return model
 
@@ -134,6 +140,9 @@ def main(argv=None):
     ap.add_argument("--train", type=float, default=40.0, help="simulated s per training run")
     ap.add_argument("--train-runs", type=int, default=10)
     ap.add_argument("--calibrate", type=int, default=5, help="identify --calibrate K")
+    ap.add_argument("--estimator", default=None, metavar="NAME[:WINDOW]",
+                    help="identify --estimator NAME [--estimator-window WINDOW] (default: identify's, lsq; fd: the "
+                         "numbers before it)")
     ap.add_argument("--cost", default=None, choices=["linear", "quadratic", "detection"],
                     help="identify --cost (default: identify's, detection; linear: the numbers before issue 35.2)")
     ap.add_argument("--fault-free", type=float, default=60.0, help="simulated s of fault-free running per seed")
@@ -144,7 +153,7 @@ def main(argv=None):
         print(s, file=sys.stderr, flush=True)
     su = replace(setup(), within_s=a.within)
     path = Path(a.model) if a.model else train_model(su, runs=a.train_runs, seconds=a.train, folds=a.calibrate,
-                                                       log=log, cost=a.cost)
+                                                       log=log, cost=a.cost, estimator=a.estimator)
     model = mdl.load(path)
     lim = dt.limits(su, seeds=a.seeds, seconds=a.fault_free)
     rows, other, before = [], [], 0

@@ -143,16 +143,17 @@ def test_lsq_is_exact_on_noise_free_model_data_and_its_window_of_one_is_fd():
 
 def test_lsq_reads_a_step_of_the_samples_as_less_motion_than_fd():
     """A step b in the newest sample (a sensor bias starting there): fd reads b / dt of velocity,
-    the window-4 fit a fifth of it; the test case that starts on the step then drifts
-    five times slower from the measurements that follow (issue 35, docs/theory.md)."""
+    the window-3 fit (the default) 0.3 times that, the window-4 fit a fifth; the test case that
+    starts on the step then drifts that much slower from the measurements that follow (issue 35,
+    docs/theory.md)."""
     p = lwa4p_joint_plant()
     y, u = np.zeros((10, 1)), np.zeros((10, 1))
     y[-1] = 1e-4
     m = np.array([9])
     v_fd = Estimator("fd").estimate(p, y, u, m)[2, 0]
-    v_lsq = Estimator.lsq(p, 4).estimate(p, y, u, m)[2, 0]
     assert v_fd == pytest.approx(1e-4 / p.dt)
-    assert v_lsq == pytest.approx(0.2 * 1e-4 / p.dt)
+    assert Estimator.lsq(p, 3).estimate(p, y, u, m)[2, 0] == pytest.approx(0.3 * 1e-4 / p.dt)
+    assert Estimator.lsq(p, 4).estimate(p, y, u, m)[2, 0] == pytest.approx(0.2 * 1e-4 / p.dt)
 
 
 def test_lsq_estimate_of_a_test_case_does_not_depend_on_the_batch_and_the_monitor_agrees():
