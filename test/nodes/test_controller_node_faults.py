@@ -29,6 +29,21 @@ pytestmark = pytest.mark.dds   # real DDS participants / node processes
 Q_TEST = np.array([0.1, -0.2])
 
 
+def subscribe_brakes(bus):
+    """``(brakes, subscription)``: every /brake_command the controller sends, from now on, in
+    ``brakes`` (destroy the subscription with ``bus.listener.destroy_subscription``)."""
+    from reachset_msgs.msg import BrakeCommand
+    brakes = []
+    sub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
+                                           QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    return brakes, sub
+
+
+def brakes_at(brakes, t):
+    """The brake commands of ``brakes`` stamped ``t``."""
+    return [b for b in list(brakes) if stamp_ns(b.header.stamp) == t]
+
+
 def wait_exit(proc, timeout):
     end = time.monotonic() + timeout
     while proc.alive():
@@ -179,14 +194,11 @@ class TestControllerNode:
         /brake_command, the effort holds the last usable position (u_p = 0), the diagnostics
         say why, and only a cleared /safe_stop gives control back. A reference it cannot use
         is treated as a late one (the newest usable earlier one carried forward), counted."""
-        from reachset_msgs.msg import BrakeCommand
         proc, _, _ = controller
         bus.clear()
         name = "reachset_ros: controller"
         before = bus.counters(name)
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         try:
             assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1, 30)
@@ -259,12 +271,9 @@ class TestStopWithoutEstimates:
         sent nothing and the drives held its last command; now every holding brake engages
         STOP_ESTIMATE_TIMEOUT after the last estimate, on /brake_command, which also says
         when braking began and which estimate the controller had when the stop arrived."""
-        from reachset_msgs.msg import BrakeCommand
         proc, _, _ = controller
         bus.clear()
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         try:
             assert bus.wait(lambda: proc.alive() and stop_pub.get_subscription_count() >= 1, 30)
@@ -297,16 +306,13 @@ class TestStopWithoutEstimatesOnTheArmsClock:
         not-ready stop while its process started) braked the held arm, which then left the
         modelled plant, and the monitor latched a violation (2026-11-26). The suite's simulated
         bring-ups (``reachset up --sim``, the demo, the campaign) run it with ``use_sim_time``."""
-        from reachset_msgs.msg import BrakeCommand
         from rosgraph_msgs.msg import Clock
         from reachset_ros.nodes.common import CLOCK_QOS
         from reachset_ros.nodes import bringup
         # the parameters `reachset up --sim` gives it (the demo's and the campaign's are the same)
         proc = start_controller(tmp_path, write_model(tmp_path / "m.yaml"),
                                 extra=bringup.defaults("controller_node", tmp_path, sim=True))
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         stop_pub = bus.caller.create_publisher(SafeStop, "safe_stop", SAFE_STOP_QOS)
         clock_pub = bus.caller.create_publisher(Clock, "/clock", CLOCK_QOS)
 
@@ -382,11 +388,8 @@ class TestAbsurdCommand:
         non-finite u_p: the controller sends the holding torque of the last usable position
         instead, engages every brake, logs and reports it (``bad_command``) until the reset.
         Before: the non-finite torque went to the drives."""
-        from reachset_msgs.msg import BrakeCommand
         ctl = start_controller(tmp_path)
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         try:
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
@@ -456,10 +459,7 @@ class TestNanMeasurementBrakesOnItsTick:
         engages with that sample's stamp (the controller's "no usable estimate"). Before, the
         observer skipped the sample, the controller had no tick to act on and braked only from
         the next finite sample (the fault campaign's NaN events: 3 ticks late)."""
-        from reachset_msgs.msg import BrakeCommand
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         obs = processes.start("observer_node", {"joints": JOINTS, "allow_uncertified": True}, tmp_path / "obs")
         ctl = start_controller(tmp_path / "ctl")
         try:
@@ -474,18 +474,15 @@ class TestNanMeasurementBrakesOnItsTick:
                 bus.send_y(t, JOINTS, y)
 
             assert bus.wait(lambda: bsub.get_publisher_count() == 1, 30), ctl.log.read_text()
-
-            def brakes_at(t):
-                return [b for b in list(brakes) if stamp_ns(b.header.stamp) == t]
             tracked = None
             end = time.monotonic() + 60
             while tracked is None and time.monotonic() < end:   # until a tick went through the pair
                 t = stamps(1)[0]
                 tick(t, [0.1, -0.2])
-                if bus.wait(lambda: brakes_at(t), 1.0):
+                if bus.wait(lambda: brakes_at(brakes, t), 1.0):
                     tracked = t
             assert tracked is not None, obs.log.read_text() + ctl.log.read_text()
-            assert not any(brakes_at(tracked)[-1].engage)
+            assert not any(brakes_at(brakes, tracked)[-1].engage)
             t_nan = stamps(1)[0]
             tick(t_nan, [math.nan, -0.2])
             assert bus.wait(lambda: any(stamp_ns(b.header.stamp) == t_nan and all(b.engage) for b in list(brakes)),
@@ -668,7 +665,6 @@ class TestMonitorStalled:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.parameter import Parameter
-        from reachset_msgs.msg import BrakeCommand
         from reachset_ros.nodes.monitor_node import MonitorNode
         assert bus.wait(lambda: bus.est.get_subscription_count() == 0 and bus.ref_subscribers() == 0)
         path = write_model(tmp_path / "m.yaml")
@@ -692,9 +688,7 @@ class TestMonitorStalled:
         n_ticks = 20
         ctl = start_controller(tmp_path / "c", wait_for_monitor=True,
                                verdicts={"monitor_verdict_ticks": n_ticks})
-        brakes = []
-        bsub = bus.listener.create_subscription(BrakeCommand, "brake_command", brakes.append,
-                                                QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+        brakes, bsub = subscribe_brakes(bus)
         zero = [0.0, 0.0]
 
         def tick(t):
@@ -705,9 +699,6 @@ class TestMonitorStalled:
             bus.ref.publish(r)
             bus.est.publish(e)
             bus.send_y(t, JOINTS, zero)
-
-        def brakes_at(t):
-            return [b for b in list(brakes) if stamp_ns(b.header.stamp) == t]
         try:
             assert bus.wait(lambda: bus.est.get_subscription_count() == 1 and bus.ref_subscribers() == 1,
                             30), ctl.log.read_text()
@@ -729,8 +720,9 @@ class TestMonitorStalled:
             ts_all = list(run)[:6 * n_ticks]
             for t in ts_all[:3 * n_ticks]:
                 tick(t)
-                assert bus.wait(lambda: bus.statuses([t, t]) and brakes_at(t), 15), (t, ctl.log.read_text()[-800:])
-                assert not any(brakes_at(t)[-1].engage), ctl.log.read_text()[-800:]
+                assert bus.wait(lambda: bus.statuses([t, t]) and brakes_at(brakes, t), 15), \
+                    (t, ctl.log.read_text()[-800:])
+                assert not any(brakes_at(brakes, t)[-1].engage), ctl.log.read_text()[-800:]
             assert "monitor stalled" not in ctl.log.read_text()
             # its executor blocked: the process and its DDS participant live on
             gate.clear()
@@ -739,14 +731,14 @@ class TestMonitorStalled:
             ts = ts_all[3 * n_ticks:]
             for t in ts:
                 tick(t)
-                bus.wait(lambda: brakes_at(t), 15)
-            assert bus.wait(lambda: all(brakes_at(ts[-1])[-1].engage), 15), ctl.log.read_text()[-800:]
+                bus.wait(lambda: brakes_at(brakes, t), 15)
+            assert bus.wait(lambda: all(brakes_at(brakes, ts[-1])[-1].engage), 15), ctl.log.read_text()[-800:]
             assert len(bus.status) == n_status                      # no verdict while blocked
             log = ctl.log.read_text()
             assert "stop: monitor stalled" in log and "monitor lost" not in log, log[-1500:]
             # engaged once the newest verdict (the tick before ts[0], or one of the few before it
             # if the controller had not read the last ones yet) is more than n_ticks behind
-            first = next(i for i, t in enumerate(ts) if all(brakes_at(t)[-1].engage))
+            first = next(i for i, t in enumerate(ts) if all(brakes_at(brakes, t)[-1].engage))
             assert n_ticks - 3 <= first <= n_ticks, first
         finally:
             gate.set()
