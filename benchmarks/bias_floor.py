@@ -15,7 +15,9 @@ estimator gives (Theorem 1's d+_1 of the model, ``MonitorModel.dp_vec[1]``).
 
 It is a floor for that one test case and these sets only: a different estimator changes the
 identified sets too, and a test case that starts on the step counts as well
-(:func:`reachset_ros.sim.detectability.sets_limit` takes every test case).
+(:func:`reachset_ros.sim.detectability.sets_limit` takes every test case). The model must be
+identified with ``--initial-state-set``: only then is alpha_V a bound of each sample's noise
+(otherwise the estimator's error is charged to W and V, and the script refuses it).
 
 Run: ``.venv/bin/python benchmarks/bias_floor.py MODEL.yaml [--windows 8]``.
 """
@@ -88,6 +90,12 @@ def main(argv=None):
     ap.add_argument("--windows", type=int, default=8, help="largest window tried (samples - 1)")
     a = ap.parse_args(argv)
     m = mdl.load(a.model)
+    if not m.initial_state_set:
+        # without it the estimator's error is charged to W and V: alpha_V is no per-sample noise bound
+        print(f"bias_floor.py: {a.model}: identified without --initial-state-set; its V also carries the "
+              f"estimator's error, so it bounds no single sample's noise (identify with --initial-state-set)",
+              file=sys.stderr)
+        sys.exit(2)
     print(f"model {a.model}: estimator {m.estimator.as_dict()}, initial-state set {m.initial_state_set}")
     print("| joint | inflation | the model's d+_1, urad | floor over linear estimators, urad | its window, weights |")
     print("|---|---|---|---|---|")

@@ -15,7 +15,7 @@ nominal model, sets and inflation fitted on the 75 runs whose number is not divi
 the 25 others held out), the same per-joint table.
 
 Run: ``.venv/bin/python benchmarks/detection_objective.py [--costs linear detection]
-[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--estimator lsq:4] [--real]``.
+[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--estimator lsq:3] [--initial-state-set] [--real]``.
 """
 import argparse
 import json
@@ -73,11 +73,12 @@ def identify(cost, train, a):
     identify's default window)."""
     name, _, window = cost.partition(":")
     est, _, est_window = (a.estimator or "").partition(":")
-    tag = f"_{est}{est_window}" if est else ""
+    tag = (f"_{est}{est_window}" if est else "") + ("_iss" if a.initial_state_set else "")
     out = CACHE / f"model_{name}{'_w' + window if window else ''}{tag}_k{a.calibrate}{'_real' if a.real else ''}.yaml"
     cmd = [str(REPO / ".venv" / "bin" / "reachset"), "identify", *map(str, train), "--calibrate", str(a.calibrate),
            "--cost", name, "--out", str(out)] + (["--detection-window", window] if window else [])
     cmd += (["--estimator", est] if est else []) + (["--estimator-window", est_window] if est_window else [])
+    cmd += ["--initial-state-set"] if a.initial_state_set else []
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}: {p.stderr.strip()[-400:]}")
@@ -119,6 +120,7 @@ def main(argv=None):
     ap.add_argument("--fault-accel", type=float, default=6.0)
     ap.add_argument("--estimator", metavar="NAME[:WINDOW]",
                     help="identify --estimator NAME [--estimator-window WINDOW] (default: identify's)")
+    ap.add_argument("--initial-state-set", action="store_true", help="identify --initial-state-set")
     ap.add_argument("--real", action="store_true", help="the real LWA-4P recordings (real-data protocol)")
     a = ap.parse_args(argv)
     if a.real:

@@ -39,9 +39,10 @@ defaults.register("identify", {
     "estimator": ("lsq", "the test cases' initial-state estimator (--estimator): 'lsq', a least-squares fit over "
                          "estimator.lsq_window + 1 samples, reads a step of the samples as less motion than 'fd' "
                          "(two samples). On the campaign's simulated training it lowered the minimum detectable "
-                         "constant acceleration 1.2-1.9 times and bias 1.1-1.7 times with no stop in fault-free "
+                         "constant acceleration 1.3-1.8 times and bias 1.2-1.7 times with no stop in fault-free "
                          "running; on hidden simulated runs and on the real LWA-4P, 0 held-out violations and a "
-                         "+6 rad/s^2 fault caught sooner on every joint (docs/performance.md, 'The lsq estimator')"),
+                         "+6 rad/s^2 fault caught as soon or sooner on every joint (12-20 ms sooner in simulation; "
+                         "docs/performance.md, 'The lsq estimator')"),
     "inflation_rule": ("largest", "how a calibrated inflation is applied (--inflation-rule): 'largest', each joint's "
                                   "value (cross-validated or validated, with the margin) replaced by the largest over "
                                   "the joints, or 'per-joint', each its own. On the real LWA-4P the per-joint values "
