@@ -105,13 +105,18 @@ def test_observer_estimator_file_round_trip_and_bad_files():
             Estimator.from_dict(bad)
 
 
-@pytest.mark.slow
-def test_cli_identify_with_the_observer_estimator_then_check_equals_replay(tmp_path):
-    p = lwa4p_joint_plant()
-    y, u = simulate(p, 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)
+def one_joint_bag(tmp_path):
+    """3000 ticks of one simulated joint written as a bag: ``(y, u, names, bag, model path)``."""
+    y, u = simulate(lwa4p_joint_plant(), 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)
     names = ["arm_1_joint"]
     bag, model = tmp_path / "bag", tmp_path / "m.yaml"
     write_bag(bag, y, u, names, T0 + DT_NS * np.arange(3000))
+    return y, u, names, bag, model
+
+
+@pytest.mark.slow
+def test_cli_identify_with_the_observer_estimator_then_check_equals_replay(tmp_path):
+    y, u, names, bag, model = one_joint_bag(tmp_path)
     r = run_cli("identify", bag, "--horizon", "40", "--estimator", "observer", "--out", model, "--json")
     assert r.returncode == 0, r.stderr
     m = mdl.load(model)
@@ -187,11 +192,7 @@ def test_lsq_estimator_file_round_trip_bad_files_and_window_option():
 
 @pytest.mark.slow
 def test_cli_identify_with_the_lsq_estimator_and_its_initial_state_set_then_check_equals_replay(tmp_path):
-    p = lwa4p_joint_plant()
-    y, u = simulate(p, 3000, np.array([0.03, 3.0]), np.array([3.5e-5]), seed=6)
-    names = ["arm_1_joint"]
-    bag, model = tmp_path / "bag", tmp_path / "m.yaml"
-    write_bag(bag, y, u, names, T0 + DT_NS * np.arange(3000))
+    y, u, names, bag, model = one_joint_bag(tmp_path)
     r = run_cli("identify", bag, "--horizon", "40", "--estimator", "lsq", "--estimator-window", "3",
                 "--initial-state-set", "--out", model, "--json")
     assert r.returncode == 0, r.stderr
