@@ -15,7 +15,8 @@ nominal model, sets and inflation fitted on the 75 runs whose number is not divi
 the 25 others held out), the same per-joint table.
 
 Run: ``.venv/bin/python benchmarks/detection_objective.py [--costs linear detection]
-[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--estimator lsq:3] [--initial-state-set] [--real]``.
+[--train 6] [--held-out 2] [--seconds 30] [--calibrate 5] [--fault-accel 6] [--estimator lsq:3]
+[--initial-state-set] [--real]``.
 """
 import argparse
 import json
