@@ -101,7 +101,8 @@ def main():
         tr0, _ = main_run["checks"]["train"]
         h0, hc = main_run["checks"]["heldout"]
         for j, v in ident["joints"].items():
-            print(f"| {j} | {[round(x, 4) for x in v['alpha_w']]} | {v['alpha_v'][0]:.3g} | {v['inflation']} | "
+            cv = v["calibration"]["inflation"]      # the joint's own cross-validated value (v["inflation"]: applied)
+            print(f"| {j} | {[round(x, 4) for x in v['alpha_w']]} | {v['alpha_v'][0]:.3g} | {cv} | "
                   f"{tr0['joints'][j]['test_cases']} | {share(tr0, j)} | {h0['joints'][j]['test_cases']} | "
                   f"{share(h0, j)} | {share(hc, j)} |")
         print("\n## Leave one family out (extrapolation to an unseen trajectory family)\n")
