@@ -126,9 +126,12 @@ class Estimator:
     def validate(self, plant):
         """Raise :class:`ReachsetError` if the ``observer``'s gains cannot be used with ``plant``
         (wrong shape, or they estimate a state the closed-loop sets assume zero, see
-        :func:`observer_gains`); model files are checked on loading."""
+        :func:`observer_gains`), or ``lsq`` is given a plant it is not for; model files are
+        checked on loading."""
         if self.name == "observer":
             _observer_gains_for(plant, self.window, self.gain)
+        elif self.name == "lsq":
+            lsq_weights(plant, self.window)
 
     def estimate_latest(self, plant, y_hist, u_hist):
         """Initial states of test cases starting at the newest sample of each row.

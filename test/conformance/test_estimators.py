@@ -188,6 +188,14 @@ def test_lsq_estimator_file_round_trip_bad_files_and_window_option():
             Estimator.from_dict(bad)
     with pytest.raises(ReachsetError, match="--estimator-window is for"):
         Estimator.named("fd", p, 3)
+    # a model file that pairs lsq with a plant it is not for is refused on loading, in one line
+    d = {"format": mdl.FORMAT, "plant": {"kind": "matrices", "A": [[1.0, 0.004], [0.0, 1.0]],
+                                         "B": [[0.0], [0.004]], "C": [[1.0, 0.0]], "Gw": [[1.0, 0.0], [0.0, 1.0]],
+                                         "Gv": [[1.0]], "dt": 0.004},
+         "estimator": {"name": "lsq", "window": 3}, "horizon": 10,
+         "joints": {"j": {"alpha_w": [0.01, 0.01], "alpha_v": [1e-4]}}}
+    with pytest.raises(ReachsetError, match="^m.yaml: estimator 'lsq' is for the per-joint LWA-4P plant"):
+        mdl.from_dict(d, "m.yaml")
 
 
 @pytest.mark.slow
