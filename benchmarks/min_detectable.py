@@ -97,6 +97,8 @@ def one_row(model, su, *, fault, joint, j, seeds, rel_tol, lim):
     r = dt.minimum_detectable(model, su, fault=fault, joint=joint, seeds=seeds, hi=START[fault](j), rel_tol=rel_tol)
     r["limit"] = lim[fault][joint]
     r["ratio"] = None if r["hi"] is None else r["hi"] / r["limit"]
+    # a bias also has the limit of the simulator's quantised sensor (dt.bias_limits)
+    r["limit_quantised"] = lim.get(f"{fault}_quantised", {}).get(joint)
     r["sets_limit"] = dt.sets_limit(model, joint, fault=fault, within_s=su.within_s)
     r["evaluations"] = len(r["tried"])
     r["wall_s"] = time.perf_counter() - t
@@ -107,15 +109,20 @@ def fmt(x, digits=3):
     return "-" if x is None else f"{x:.{digits}g}"
 
 
+def qlim(r):
+    q = r.get("limit_quantised")
+    return "" if q is None else f" (quantised sensor {fmt(q)})"
+
+
 def table(rows, other, free, model, seeds, onset_s, within_s):
     out = [f"model inflation {model.inflation:g}; seeds {list(seeds)}; stopped within {within_s * 1e3:g} ms of the onset in "
-           "every seed",
+           "every seed; a bias' limit is 4 noise bounds, in brackets the quantised sensor's (dt.bias_limits)",
            "", "| fault | joint | minimum detectable (bracket) | limit | ratio | the sets' own limit | "
            "onset -> stop, ms (per seed) |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         lat = "-" if r["latency_ms"] is None else ", ".join(f"{x:.0f}" for x in r["latency_ms"])
         out.append(f"| {r['fault']} ({UNIT[r['fault']]}) | {r['joint']} | {fmt(r['hi'])} ({fmt(r['lo'])}-{fmt(r['hi'])})"
-                   f" | {fmt(r['limit'])} | {fmt(r['ratio'])} | {fmt(r['sets_limit'])} | {lat} |")
+                   f" | {fmt(r['limit'])}{qlim(r)} | {fmt(r['ratio'])} | {fmt(r['sets_limit'])} | {lat} |")
     if other:
         out += ["", "| fault (no magnitude) | joint | stopped within 100 ms | onset -> stop, ms (per seed) | by |",
                 "|---|---|---|---|---|"]

@@ -28,9 +28,16 @@ acted, and :func:`limits` turns a fault-free run's traces into each class' limit
   acceleration no larger is the disturbance at its bound;
 * ``torque`` (N m on one joint): the largest torque whose acceleration on every joint ``i``,
   ``|M_true(q)^-1_ij| tau`` along the run, stays within joint i's ``max |w2|``;
-* ``bias`` (rad on one joint's position reading): twice the measurement-noise bound
-  (3 sigma, the simulator's clip, plus half the encoder step): a noise sample moving from
-  one end of V to the other is a step of that size.
+* ``bias`` (rad on one joint's position reading): four times the measurement-noise bound
+  ``n`` (3 sigma, the simulator's clip, plus half the encoder step), :func:`bias_limits`. The
+  true position is known only through the readings, so a healthy arm standing ``b/2`` off
+  the faulty arm's position, with the same velocity, inputs and disturbances, reads the same
+  as the arm with a bias ``b <= 4 n`` whenever the noise sits at ``b/2 - n .. n`` before the
+  step and ``-n .. n - b/2`` after it: every sample's error within ``n``, on both sides,
+  forever (:func:`bias_twin`). Before 2026-12-01 the limit was ``2 n`` (a noise sample moving
+  from one end of V to the other), which holds the true position known; :func:`bias_limits`
+  also gives the limit on the simulator's quantised sensor itself, ``2 q floor(6 sigma / q)``
+  (q the encoder step), for every trajectory.
 
 Frozen sensors and NaN samples have no magnitude: the stuck-sensor rule and the
 non-finite-sample rule bound them (reported by the benchmark with their latency).
@@ -55,7 +62,8 @@ from . import simulator as simm
 from .recordings import recordings_series, simulate_arm_recordings
 
 __all__ = ["FAULT_CLASSES", "WITHIN_S", "Setup", "Case", "Bracket", "make_fault", "simulate", "monitor_stops",
-           "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "sets_limit",
+           "run_case", "detected", "bisect", "minimum_detectable", "disturbance_trace", "limits", "bias_limits",
+           "bias_twin", "sets_limit",
            "fault_free", "training_series",
            "identify_model"]
 
@@ -297,11 +305,93 @@ def _noise_bound(cfg, n):
     return 3.0 * sig + 0.5 * float(cfg.quantization)
 
 
+def bias_limits(cfg, n):
+    """The largest sensor bias no sound monitor can promise to stop, per joint, two ways.
+
+    Syntax: ``set_based, quantised = bias_limits(cfg, n)``.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The simulator's configuration: ``position_noise`` sigma (per joint or one value),
+        clipped at +-3 sigma, and ``quantization`` q, the encoder step the reading is rounded
+        to before the noise is added (:meth:`.simulator.SimulatedArm._measure`).
+    n : int
+        The number of joints.
+
+    Returns
+    -------
+    set_based : ndarray (n,)
+        ``4 nb`` with ``nb = 3 sigma + q/2`` the bound of a reading's error: the limit when
+        the noise is any sequence within ``[-nb, nb]``, as the acceleration class' limit takes
+        the disturbance as any sequence within its bound (detection-limit note).
+    quantised : ndarray (n,)
+        ``2 q floor(6 sigma / q)`` (``12 sigma`` for q = 0): the limit on the simulator's own
+        sensor, rounding included, along every trajectory. With the offset ``d = M q``
+        (``M = floor(6 sigma / q)``) the rounded readings differ by exactly ``M q`` before
+        the step and by at most ``M q`` after it, for every bias up to ``2 M q``; each
+        difference is split between the two noise samples (``-D/2``, ``+D/2``, within the
+        clip).
+
+    Notes
+    -----
+    A bias ``b`` added to the position reading from sample 0 on (``y = Q(p + b) + nu``,
+    ``p`` the true position) and a healthy arm at ``p + d`` (``y' = Q(p + d) + nu'``) give
+    the same readings when ``|nu|, |nu'|`` can absorb the difference; with the same velocity,
+    inputs and disturbances everything else is the same too, since a constant position offset
+    is an equilibrium of the Appendix-A plant's difference (``A [1, 1, 0, 0, 0] = [1, 1, 0,
+    0, 0]``) and the controller reads the same samples. So no monitor that never stops a
+    healthy arm can promise to stop such a bias, however late. The constructions are
+    :func:`bias_twin`; ``test_detectability.py`` checks them on a simulated run. Both are
+    lower bounds of the true limit (a healthy arm could also move within its disturbance
+    bound); neither uses the disturbance."""
+    sig = np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
+    q = float(cfg.quantization)
+    set_based = 4.0 * _noise_bound(cfg, n)
+    quantised = 2.0 * q * np.floor(6.0 * sig / q) if q > 0 else 12.0 * sig
+    return set_based, quantised
+
+
+def bias_twin(p, bias, *, sigma, quantization, onset=0):
+    """A healthy reading sequence equal to a biased one: the construction behind
+    :func:`bias_limits`' quantised limit.
+
+    Syntax: ``twin = bias_twin(p, b, sigma=s, quantization=q, onset=k0)``.
+
+    Parameters
+    ----------
+    p : array_like (T,)
+        One joint's true positions, sample by sample (e.g. a simulated run's ``q_true``).
+    bias : float
+        The bias, added to the reading from sample ``onset`` on, ``0 <= bias <= 2 M q``.
+    sigma, quantization : float
+        The noise's sigma (clipped at +-3 sigma) and the encoder step q (> 0).
+
+    Returns
+    -------
+    dict
+        ``offset`` (``d = M q``), ``y`` (the biased readings ``Q(p + b H) + nu``),
+        ``y_twin`` (the healthy arm's at ``p + d``, ``Q(p + d) + nu'``), ``noise`` and
+        ``noise_twin`` (``nu``, ``nu'``, each within ``[-3 sigma, 3 sigma]`` up to rounding).
+        ``y == y_twin`` to the rounding of one addition."""
+    p = np.asarray(p, float)
+    q = float(quantization)
+    m = math.floor(6.0 * float(sigma) / q)
+    d = m * q
+    step = np.where(np.arange(len(p)) >= onset, float(bias), 0.0)
+    qb, qd = simm.quantize(p + step, q), simm.quantize(p + d, q)
+    diff = qb - qd
+    noise = -0.5 * diff
+    y = qb + noise
+    return {"offset": d, "y": y, "y_twin": qd + 0.5 * diff, "noise": noise, "noise_twin": y - qd}
+
+
 def limits(setup: Setup, *, seeds, seconds=None):
     """Each class' detection limit per joint from fault-free runs of ``setup`` (module docstring).
 
     Returns ``{"acceleration": {joint: rad/s^2}, "torque": {joint: N m}, "bias": {joint: rad},
-    "w2_max": {joint: rad/s^2}}``."""
+    "bias_quantised": {joint: rad}, "w2_max": {joint: rad/s^2}}`` (the two bias limits:
+    :func:`bias_limits`)."""
     cfg = setup.config()
     truth = cfg.true_robot()
     data = rb.create_data(truth)
@@ -318,9 +408,10 @@ def limits(setup: Setup, *, seeds, seconds=None):
         minv = inv if minv is None else np.maximum(minv, inv)
     n = len(names)
     torque = {nm: float(np.min(w2max / minv[:, j])) for j, nm in enumerate(names)}
-    vb = _noise_bound(cfg, n)
+    bias, bias_q = bias_limits(cfg, n)
     return {"acceleration": dict(zip(names, w2max.tolist())), "torque": torque,
-            "bias": {nm: float(2 * vb[j]) for j, nm in enumerate(names)}, "w2_max": dict(zip(names, w2max.tolist()))}
+            "bias": dict(zip(names, bias.tolist())), "bias_quantised": dict(zip(names, bias_q.tolist())),
+            "w2_max": dict(zip(names, w2max.tolist()))}
 
 
 def sets_limit(model, joint, *, fault="acceleration", within_s=WITHIN_S):

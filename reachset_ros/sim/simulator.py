@@ -279,6 +279,12 @@ class SimState:
     q_lock: np.ndarray = None      # where a locked joint is held
 
 
+def quantize(q, step):
+    """An encoder's reading of ``q``: rounded to the nearest multiple of ``step`` (> 0), as
+    :meth:`SimulatedArm._measure` reads the position before adding the noise."""
+    return np.round(np.asarray(q, dtype=np.float64) / step) * step
+
+
 class SimulatedArm:
     """A simulated arm with the paper's one-sample input and output delays.
 
@@ -593,7 +599,7 @@ class SimulatedArm:
             if isinstance(fl, SensorBias) and self._active(st, fl, t):
                 q[self._joint(fl.joint)] += fl.bias
         if cfg.quantization > 0:
-            q = np.round(q / cfg.quantization) * cfg.quantization
+            q = quantize(q, cfg.quantization)
         q = q + nq
         qd = qd + nqd
         for fl in st.faults:

@@ -87,9 +87,12 @@ def test_limits_per_class():
     assert set(lim) >= {"acceleration", "torque", "bias"}
     names = list(lim["acceleration"])
     assert len(names) == 6 and all(v > 0 for c in ("acceleration", "torque", "bias") for v in lim[c].values())
-    # the bias limit: twice the calibrated noise bound (3 sigma + half the encoder step)
+    # the bias limit: four times the calibrated noise bound (3 sigma + half the encoder step),
+    # and on the quantised sensor 2 q floor(6 sigma / q) (below it: the same encoder steps)
     cfg = simm.SimConfig.calibrated()
-    assert lim["bias"][names[0]] == pytest.approx(2 * (3 * cfg.position_noise[0] + 0.5 * cfg.quantization))
+    assert lim["bias"][names[0]] == pytest.approx(4 * (3 * cfg.position_noise[0] + 0.5 * cfg.quantization))
+    assert lim["bias_quantised"][names[0]] == pytest.approx(2 * 3 * cfg.quantization)     # 6 sigma = 3.4 q
+    assert all(lim["bias_quantised"][n] <= lim["bias"][n] for n in names)
     # a torque at the limit accelerates no joint beyond its w2 bound
     assert all(lim["torque"][n] > 0 for n in names)
 
@@ -150,3 +153,58 @@ def test_the_sets_own_limit_is_where_the_monitor_stops_the_noise_free_fault(mode
     hit = _first_violation(model, joint, fault, 1.02 * lim, span)
     assert hit is not None and first <= hit <= span
     assert _first_violation(model, joint, fault, 0.98 * lim, span) is None
+
+
+def test_a_bias_up_to_four_noise_bounds_reads_the_same_as_a_healthy_arm_standing_half_of_it_off():
+    """The set-based bias limit (detection-limit note): with every reading's error within n, a
+    bias b <= 4 n from sample 0 on and a healthy arm offset by b/2 (same inputs and disturbances)
+    give the same readings, before and after the step. The limit before 2026-12-01 was 2 n: a
+    bias of 0.999 * 4 n, which this construction hides, lay far above it."""
+    from reachset_ros.systems.plant import lwa4p_joint_plant
+    plant = lwa4p_joint_plant()
+    A, B, C, G = (np.asarray(m, float) for m in (plant.A, plant.B, plant.C, plant.Gw))
+    e = np.array([1.0, 1.0, 0.0, 0.0, 0.0])              # a constant position offset
+    assert np.array_equal(A @ e, e) and float((C @ e)[0]) == 1.0
+    cfg = simm.SimConfig.calibrated()
+    set_based, _ = dt.bias_limits(cfg, 6)
+    rng = np.random.default_rng(3)
+    for j in range(6):
+        nb = 3 * cfg.position_noise[j] + 0.5 * cfg.quantization
+        b = 0.999 * float(set_based[j])
+        assert b > 2 * nb                                   # above the old limit
+        x = np.array([0.3, 0.3, 0.1, 0.0, 0.0])
+        xt = x + 0.5 * b * e                                # the healthy twin
+        for k in range(-200, 200):
+            lo, hi = (0.5 * b - nb, nb) if k < 0 else (-nb, nb - 0.5 * b)
+            y = float((C @ x)[0]) + rng.uniform(lo, hi) + (b if k >= 0 else 0.0)
+            nu_twin = y - float((C @ xt)[0])
+            assert abs(nu_twin) <= nb * (1 + 1e-9), (j, k)
+            u, w = rng.uniform(-5, 5), rng.uniform(-1, 1, 2) * [0.05, 1.5]
+            x = A @ x + B[:, 0] * u + G @ w
+            xt = A @ xt + B[:, 0] * u + G @ w
+
+
+@pytest.mark.parametrize("fraction", [1.0, 0.71, 0.5, 0.13])
+def test_the_quantised_bias_limit_hides_a_bias_on_the_simulators_own_sensor(fraction):
+    """:func:`dt.bias_twin` on a simulated run's true positions: the biased readings (rounded to
+    the encoder step, as the simulator reads them) and a healthy arm's at an offset of M encoder
+    steps agree, each with noise inside the simulator's clip of 3 sigma, for every bias up to
+    the quantised limit."""
+    cfg = simm.SimConfig.calibrated()
+    _, quantised = dt.bias_limits(cfg, 6)
+    _, log = dt.simulate(SETUP, seed=101, seconds=2.0)
+    q_true = np.asarray(log["q_true"], float)
+    assert np.ptp(q_true, axis=0).max() > 0.05              # the arm moves: every rounding phase
+    for j in range(6):
+        sig, step = cfg.position_noise[j], cfg.quantization
+        b = fraction * float(quantised[j])
+        tw = dt.bias_twin(q_true[:, j], b, sigma=sig, quantization=step, onset=len(q_true) // 2)
+        assert tw["offset"] > 0 and tw["offset"] == pytest.approx(0.5 * quantised[j])
+        np.testing.assert_allclose(tw["y"], tw["y_twin"], rtol=0, atol=1e-15)
+        for nu in (tw["noise"], tw["noise_twin"]):
+            assert np.max(np.abs(nu)) <= 3 * sig + 1e-15, (j, np.max(np.abs(nu)), 3 * sig)
+        # the biased readings are the simulator's: the rounded biased position plus the noise
+        h = np.arange(len(q_true)) >= len(q_true) // 2
+        np.testing.assert_allclose(tw["y"] - tw["noise"], simm.quantize(q_true[:, j] + b * h, step),
+                                   rtol=0, atol=1e-15)
+
