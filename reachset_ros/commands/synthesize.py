@@ -27,6 +27,7 @@ import math
 import sys
 import time
 
+from .. import defaults
 from ..conformance.estimators import ESTIMATORS
 from ..errors import ReachsetError
 from ..synthesis.config import PARAMS
@@ -70,7 +71,8 @@ def add_arguments(p):
                    help="accept a horizon below the plant's minimum (a weaker guarantee: some alpha is not "
                         "constrained by the data); recorded in the model file")
     p.add_argument("--estimator", default=None, choices=sorted(ESTIMATORS),
-                   help="initial-state estimator of the test cases (default fd; reidentify: the model's)")
+                   help=f"initial-state estimator of the test cases (default {defaults.get('synthesis.estimator')}; "
+                        "reidentify: the model's)")
     p.add_argument("--initial-state-set", action=argparse.BooleanOptionalAction, default=None,
                    help="Theorem 1 with the estimator's initial-state error as a set (default; as identify "
                         "--initial-state-set: much smaller sets, docs/synthesis.md); --no-initial-state-set: "

@@ -28,6 +28,19 @@ defaults.register("estimator", {
 }, owner=__name__)
 
 
+#: the windows the windowed estimators accept, inclusive (:func:`_window`)
+WINDOW_RANGE = {"lsq": (1, 1000), "observer": (1, 10_000)}
+
+
+def _window(name, w):
+    """``w`` as the window of estimator ``name`` (:data:`WINDOW_RANGE`): the one check of a
+    window, given on the command line, in code or read from a model file."""
+    lo, hi = WINDOW_RANGE[name]
+    if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or not lo <= w <= hi:
+        raise ReachsetError(f"{name} estimator: window must be an integer in [{lo}, {hi}], got {w!r}")
+    return int(w)
+
+
 @dataclass(frozen=True)
 class Estimator:
     """A named initial-state estimator.
@@ -64,20 +77,17 @@ class Estimator:
     @classmethod
     def observer(cls, plant, window=20, noise_ratio=1e-4):
         """The ``observer`` estimator for ``plant`` (:func:`observer_gains`)."""
-        if not (isinstance(window, (int, np.integer)) and 1 <= window <= 10_000):
-            raise ReachsetError(f"observer window must be an integer in [1, 10000], got {window!r}")
+        window = _window("observer", window)
         G = observer_gains(plant, window, noise_ratio)
-        return cls("observer", int(window), _tuple3(G))
+        return cls("observer", window, _tuple3(G))
 
     @classmethod
     def lsq(cls, plant, window=None):
         """The ``lsq`` estimator over ``window`` + 1 samples (:func:`lsq_weights`; None: the
         default ``estimator.lsq_window``)."""
-        window = defaults.get("estimator.lsq_window") if window is None else window
-        if not (isinstance(window, (int, np.integer)) and not isinstance(window, bool) and 1 <= window <= 1000):
-            raise ReachsetError(f"lsq window must be an integer in [1, 1000], got {window!r}")
-        lsq_weights(plant, int(window))       # refuses a plant it is not for
-        return cls("lsq", int(window))
+        window = _window("lsq", defaults.get("estimator.lsq_window") if window is None else window)
+        lsq_weights(plant, window)            # refuses a plant it is not for
+        return cls("lsq", window)
 
     @classmethod
     def named(cls, name, plant, window=None):
@@ -106,15 +116,10 @@ class Estimator:
         if not isinstance(d, dict) or not isinstance(d.get("name"), str) or d["name"] not in ESTIMATORS:
             raise ReachsetError(f"unknown initial-state estimator {d!r}; known: {sorted(ESTIMATORS)}")
         if d["name"] == "lsq":
-            w = d.get("window")
-            if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 1000:
-                raise ReachsetError(f"lsq estimator: window must be an integer in [1, 1000], got {w!r}")
-            return cls("lsq", w)
+            return cls("lsq", _window("lsq", d.get("window")))
         if d["name"] != "observer":
             return cls(d["name"])
-        w, g = d.get("window"), d.get("gains")
-        if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 10_000:
-            raise ReachsetError(f"observer estimator: window must be an integer in [1, 10000], got {w!r}")
+        w, g = _window("observer", d.get("window")), d.get("gains")
         try:
             G = np.array(g, dtype=np.float64)
         except (TypeError, ValueError):

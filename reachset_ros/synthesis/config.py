@@ -34,6 +34,10 @@ PENALTY = 1e6
 U_MARGIN = 1e-4  # relative slack of R_u inside U_p: absorbs the final outer-bound and soundness inflation
 
 defaults.register("synthesis", {
+    "estimator": ("fd", "the test cases' initial-state estimator of a synthesis from bags (synthesize "
+                        "--estimator; reidentify: the model's), and so of the demo's calibration of its rows: "
+                        "causal finite differences corrected with the model's input response. identify's "
+                        "default is 'lsq' (identify.estimator); the synthesis was not measured with it"),
     "u_max_unlisted": (26.0, "U_p half-width, rad/s^2, of a joint the synthesis configuration does not list "
                              "(its u_max.default; the LWA-4P's axes 1-4 value of paper Table I)"),
 }, owner=__name__)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import conformance as cf
+from .. import defaults
 from .. import guarantees
 from ..bags import JOINT_STATES, PLANT_INPUT, REFERENCE_TOPIC, read_estimates, read_joint_series, read_references
 from ..conformance import model as mdl
@@ -76,7 +77,7 @@ def iterate(record, series, space, *, iterations=2, final_reidentify=True, plant
         false).
     """
     plant = plant or lwa4p_joint_plant(dt=dt)
-    estimator = estimator or Estimator("fd")
+    estimator = estimator or Estimator.named(defaults.get("synthesis.estimator"), plant)
     cf.require_minimum_horizon(plant, horizon, allow_weak_horizon)
     thm = cf.Theorem1.build(plant, horizon, estimator if initial_state_set else None)
     history = []
@@ -361,7 +362,7 @@ def plan(bags, options: SynthesisOptions):
             raise ReachsetError("a model file is only used with mode reidentify")
         plant, plant_spec = lwa4p_joint_plant(dt=o.dt), {"kind": "lwa4p_joint", "dt": o.dt}
         horizon = 125 if o.horizon is None else int(o.horizon)
-        est = Estimator.named(o.estimator or "fd", lwa4p_joint_plant(dt=o.dt))
+        est = Estimator.named(o.estimator or defaults.get("synthesis.estimator"), lwa4p_joint_plant(dt=o.dt))
         gains, names = None, (list(o.joints) if o.joints else None)
         model_classes = {}
         space = SearchSpace.from_config(cfg, observer=o.observer, controller=o.controller, free=o.free, fix=o.fix,

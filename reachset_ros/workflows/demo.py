@@ -331,14 +331,15 @@ def synthesis_arguments():
 def calibrate_inflation(*, bags, workdir):
     """The monitor's inflation from the training recordings alone: the identification workflow
     with ``calibrate=2`` and ``initial_state_set`` (``reachset identify BAGS --calibrate 2
-    --initial-state-set --estimator fd``; the synthesis' Theorem-1 rows and estimator; each recording a fold: the sets
+    --initial-state-set --estimator E``, E the synthesis' estimator ``synthesis.estimator``: its Theorem-1 rows; each recording a fold: the sets
     identified on one must hold on the other,
     :func:`reachset_ros.conformance.calibration.cross_validate`), in a low-priority worker
     process. Returns ``(inflation, details)``; a flagged joint (no grid value held) is
     reported, and its largest grid value is used."""
-    # the synthesis' estimator (synthesis.pipeline: fd), not identify's default: its rows are calibrated
-    command = " ".join(["reachset identify", *map(str, bags), "--calibrate 2 --initial-state-set --estimator fd"])
-    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=2, initial_state_set=True, estimator="fd",
+    # the synthesis' estimator (synthesis.estimator), not identify's default: its rows are calibrated
+    est = defaults.get("synthesis.estimator")
+    command = " ".join(["reachset identify", *map(str, bags), f"--calibrate 2 --initial-state-set --estimator {est}"])
+    opts = IdentifyOptions(bags=tuple(map(str, bags)), calibrate=2, initial_state_set=True, estimator=est,
                            command=command)
     try:
         r = run_in_worker(identify, opts).to_json()

@@ -188,6 +188,15 @@ def test_lsq_estimator_file_round_trip_bad_files_and_window_option():
             Estimator.from_dict(bad)
     with pytest.raises(ReachsetError, match="--estimator-window is for"):
         Estimator.named("fd", p, 3)
+    # one window check for code, the command line and model files, for both windowed estimators
+    # (before, a window of True was an observer window of 1 in code, refused in a file)
+    for name, hi in (("lsq", 1000), ("observer", 10_000)):
+        for bad in (True, 0, hi + 1, 2.5):
+            msg = rf"^{name} estimator: window must be an integer in \[1, {hi}\], got {bad!r}$"
+            with pytest.raises(ReachsetError, match=msg):
+                Estimator.named(name, p, bad)
+            with pytest.raises(ReachsetError, match=msg):
+                Estimator.from_dict({"name": name, "window": bad, "gains": [[[0.0]]]})
     # a model file that pairs lsq with a plant it is not for is refused on loading, in one line
     d = {"format": mdl.FORMAT, "plant": {"kind": "matrices", "A": [[1.0, 0.004], [0.0, 1.0]],
                                          "B": [[0.0], [0.004]], "C": [[1.0, 0.0]], "Gw": [[1.0, 0.0], [0.0, 1.0]],
