@@ -49,12 +49,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import defaults
 from .. import robot as rb
 from ..conformance import model as mdl
 from ..conformance.estimators import Estimator
 from ..conformance.identify import identify_sets
 from ..conformance.monitor_core import MonitorCore
 from ..conformance.theorem1 import Theorem1, deviation_extremes_many
+from ..conformance import validation as _validation  # noqa: F401  (registers detection.within_s)
 from ..conformance.watches import FaultEvent
 from ..errors import ReachsetError
 from ..systems.plant import lwa4p_joint_plant
@@ -69,8 +71,9 @@ __all__ = ["FAULT_CLASSES", "WITHIN_S", "Setup", "Case", "Bracket", "make_fault"
 
 #: the fault classes with a magnitude, per joint (the simulator's faults; units rad/s^2, N m, rad)
 FAULT_CLASSES = ("acceleration", "torque", "bias")
-#: a fault counts as stopped when the monitor's stop stamp is at most this after its onset (s)
-WITHIN_S = 0.1
+#: a fault counts as stopped when the monitor's stop stamp is at most this after its onset (s):
+#: the registered ``detection.within_s``
+WITHIN_S = defaults.get("detection.within_s")
 
 
 def make_fault(kind, joint, magnitude, start_s):
