@@ -347,7 +347,13 @@ def bias_limits(cfg, n):
     healthy arm can promise to stop such a bias, however late. The constructions are
     :func:`bias_twin`; ``test_detectability.py`` checks them on a simulated run. Both are
     lower bounds of the true limit (a healthy arm could also move within its disturbance
-    bound); neither uses the disturbance."""
+    bound); neither uses the disturbance.
+
+    Assumption: the twin is exact for the Appendix-A plant, the model the monitor checks. On
+    the simulated rigid-body arm the same torques at a configuration ``d`` away accelerate the
+    arm slightly differently (the gradient of gravity and inertia over ``d``, 0.07-0.23 mrad
+    here); the twin's disturbance carries that difference, which is assumed to stay within the
+    truth's disturbance bound. That is not checked here."""
     sig = np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
     q = float(cfg.quantization)
     set_based = 4.0 * _noise_bound(cfg, n)
