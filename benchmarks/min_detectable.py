@@ -110,9 +110,9 @@ def fmt(x, digits=3):
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-def qlim(r):
-    q = r.get("limit_quantised")
-    return "" if q is None else f" (quantised sensor {fmt(q)})"
+def quantised(x, digits=3):
+    """`` (quantised sensor X)`` beside a bias' value, nothing for the other classes (x None)."""
+    return "" if x is None else f" (quantised sensor {fmt(x, digits)})"
 
 
 def table(rows, other, free, model, seeds, onset_s, within_s):
@@ -123,7 +123,7 @@ def table(rows, other, free, model, seeds, onset_s, within_s):
     for r in rows:
         lat = "-" if r["latency_ms"] is None else ", ".join(f"{x:.0f}" for x in r["latency_ms"])
         out.append(f"| {r['fault']} ({UNIT[r['fault']]}) | {r['joint']} | {fmt(r['hi'])} ({fmt(r['lo'])}-{fmt(r['hi'])})"
-                   f" | {fmt(r['limit'])}{qlim(r)} | {fmt(r['ratio'])} | {fmt(r['sets_limit'])} | {lat} |")
+                   f" | {fmt(r['limit'])}{quantised(r.get('limit_quantised'))} | {fmt(r['ratio'])} | {fmt(r['sets_limit'])} | {lat} |")
     if other:
         out += ["", "| fault (no magnitude) | joint | stopped within 100 ms | onset -> stop, ms (per seed) | by |",
                 "|---|---|---|---|---|"]
@@ -147,9 +147,8 @@ def against_before(rows, before):
         b = before.get(r["fault"], {}).get(r["joint"])
         if b is None:
             continue
-        half = 0.5 * b / r["limit"]
         q = r.get("limit_quantised")
-        half_txt = fmt(half, 3) + ("" if q is None else f" (quantised sensor {fmt(0.5 * b / q, 3)})")
+        half_txt = fmt(0.5 * b / r["limit"], 3) + quantised(None if q is None else 0.5 * b / q)
         out.append(f"| {r['fault']} ({UNIT[r['fault']]}) | {r['joint']} | {fmt(r['hi'])} | {fmt(b)} | "
                    f"{fmt(None if r['hi'] is None else r['hi'] / b, 2)} | {half_txt} |")
     return "\n".join(out)

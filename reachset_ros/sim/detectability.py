@@ -303,9 +303,19 @@ def disturbance_trace(log, dt=simm.DT):
     return w1, w2
 
 
+def _position_sigma(cfg, n):
+    """The position noise's sigma per joint (``cfg.position_noise``: one value or n)."""
+    return np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
+
+
 def _noise_bound(cfg, n):
-    sig = np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
-    return 3.0 * sig + 0.5 * float(cfg.quantization)
+    return 3.0 * _position_sigma(cfg, n) + 0.5 * float(cfg.quantization)
+
+
+def _twin_steps(sigma, q):
+    """``M = floor(6 sigma / q)``: the encoder steps two readings' noises (each within
+    +-3 sigma) can absorb between them; the quantised bias twin stands ``M q`` off."""
+    return np.floor(6.0 * np.asarray(sigma, float) / q)
 
 
 def bias_limits(cfg, n):
@@ -354,10 +364,10 @@ def bias_limits(cfg, n):
     arm slightly differently (the gradient of gravity and inertia over ``d``, 0.07-0.23 mrad
     here); the twin's disturbance carries that difference, which is assumed to stay within the
     truth's disturbance bound. That is not checked here."""
-    sig = np.broadcast_to(np.asarray(cfg.position_noise, float), (n,))
+    sig = _position_sigma(cfg, n)
     q = float(cfg.quantization)
     set_based = 4.0 * _noise_bound(cfg, n)
-    quantised = 2.0 * q * np.floor(6.0 * sig / q) if q > 0 else 12.0 * sig
+    quantised = 2.0 * q * _twin_steps(sig, q) if q > 0 else 12.0 * sig
     return set_based, quantised
 
 
@@ -381,18 +391,16 @@ def bias_twin(p, bias, *, sigma, quantization, onset=0):
     dict
         ``offset`` (``d = M q``), ``y`` (the biased readings ``Q(p + b H) + nu``),
         ``y_twin`` (the healthy arm's at ``p + d``, ``Q(p + d) + nu'``), ``noise`` and
-        ``noise_twin`` (``nu``, ``nu'``, each within ``[-3 sigma, 3 sigma]`` up to rounding).
-        ``y == y_twin`` to the rounding of one addition."""
+        ``noise_twin`` (``nu = -D/2``, ``nu' = D/2`` with ``D`` the rounded readings'
+        difference, each within ``[-3 sigma, 3 sigma]``). ``y == y_twin`` to the rounding of
+        one addition."""
     p = np.asarray(p, float)
     q = float(quantization)
-    m = math.floor(6.0 * float(sigma) / q)
-    d = m * q
+    d = float(_twin_steps(sigma, q)) * q
     step = np.where(np.arange(len(p)) >= onset, float(bias), 0.0)
     qb, qd = simm.quantize(p + step, q), simm.quantize(p + d, q)
-    diff = qb - qd
-    noise = -0.5 * diff
-    y = qb + noise
-    return {"offset": d, "y": y, "y_twin": qd + 0.5 * diff, "noise": noise, "noise_twin": y - qd}
+    half = 0.5 * (qb - qd)
+    return {"offset": d, "y": qb - half, "y_twin": qd + half, "noise": -half, "noise_twin": half}
 
 
 def limits(setup: Setup, *, seeds, seconds=None):

@@ -331,8 +331,8 @@ def synthesis_arguments():
 def calibrate_inflation(*, bags, workdir):
     """The monitor's inflation from the training recordings alone: the identification workflow
     with ``calibrate=2`` and ``initial_state_set`` (``reachset identify BAGS --calibrate 2
-    --initial-state-set --estimator E``, E the synthesis' estimator ``synthesis.estimator``: its Theorem-1 rows; each recording a fold: the sets
-    identified on one must hold on the other,
+    --initial-state-set --estimator E``, E the synthesis' estimator ``synthesis.estimator``: its
+    Theorem-1 rows; each recording a fold: the sets identified on one must hold on the other,
     :func:`reachset_ros.conformance.calibration.cross_validate`), in a low-priority worker
     process. Returns ``(inflation, details)``; a flagged joint (no grid value held) is
     reported, and its largest grid value is used."""

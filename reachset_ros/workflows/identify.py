@@ -57,11 +57,11 @@ defaults.register("identify", {
                           "benchmarks/detection_objective.py)"),
     "detection_window": (defaults.get("detection.within_s"),
                          "seconds (--detection-window): the 'detection' cost sums the radii over the steps "
-                              "within this time of a test case's start, the time in which a fault must stop "
-                              "(detection.within_s, issue 35.5); 0: the whole horizon (before 2026-11-28). On the campaign's simulated "
-                              "training, 0.1 lowered the minimum detectable bias 1.2-1.8 times and acceleration "
-                              "1.1-1.35 times, with no stop in fault-free running; on the real LWA-4P, 0 held-out "
-                              "violations both ways (docs/performance.md, 'Identification for detection')"),
+                         "within this time of a test case's start, the time in which a fault must stop "
+                         "(detection.within_s, issue 35.5); 0: the whole horizon (before 2026-11-28). On the "
+                         "campaign's simulated training, 0.1 lowered the minimum detectable bias 1.2-1.8 times and "
+                         "acceleration 1.1-1.35 times, with no stop in fault-free running; on the real LWA-4P, 0 "
+                         "held-out violations both ways (docs/performance.md, 'Identification for detection')"),
 }, owner=__name__)
 
 defaults.register("identify.envelope", {
